@@ -1,0 +1,573 @@
+"""The planning API the scan calls: reachable views, collision-free time-optimal moves, tours.
+
+    planner = Planner(workcell, X_FC, X_CR, PlannerConfig(cache_dir=...))
+    qs = planner.reachable(viewpoint, q_now)          # collision-free IK solutions, best first
+    result = planner.plan(q_now, qs[0])               # Trajectory | PlanFailure
+    tour = planner.plan_tour(q_now, [qs_view1, qs_view2, ...])
+
+Every Trajectory returned has passed `validation.validate_trajectory` (dense joint steps,
+collision with padding, position/velocity/acceleration limits); a plan that fails it is reported
+as a PlanFailure, never returned. PlanFailure.reason is one of PLAN_FAILURE_REASONS:
+- "start_invalid": the start is outside the joint limits or in collision (within the padding);
+- "goal_invalid": the same for the goal (e.g. a goal inside an obstacle);
+- "no_path": no collision-free path was found (roadmap, then RRTConnect within query_time_s);
+- "validation_failed": paths were found but none survived time parameterisation + validation;
+- "goal_unreachable": (tours) no alternative configuration of a viewpoint could be reached.
+Malformed input (wrong shape, NaN, a viewpoint inside the object) raises ScannerError.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.metadata
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from planners.collision import CollisionChecker
+from planners.ik import Viewpoint, camera_pose, ik_camera, rig_centre_offset
+from planners.prm import (
+    OmplSpace,
+    Roadmap,
+    RoadmapGraph,
+    build_roadmap,
+    cache_key,
+    load_roadmap,
+    save_roadmap,
+    seed_ompl,
+    shortcut,
+    solve_rrtconnect,
+)
+from planners.timing import (
+    SMOOTH,
+    STOP,
+    PlanStats,
+    Trajectory,
+    creep,
+    merge_close_waypoints,
+    straight_line_time_s,
+    time_parameterise,
+)
+from planners.validation import ValidationReport, validate_trajectory
+from reconstruction.errors import ScannerError
+from robots.rx60 import RX60, rx60_urdf
+from robots.workcell import Workcell, keep_out_radius_m
+
+PLAN_FAILURE_REASONS = (
+    "start_invalid",
+    "goal_invalid",
+    "goal_unreachable",
+    "no_path",
+    "validation_failed",
+)
+_DEG = math.pi / 180.0
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Planner settings. Units are in the names; every field is validated on construction."""
+
+    # Clearance kept between the robot (incl. tool) and the cell, and between robot links.
+    padding_m: float = 0.010
+    # Roadmap: OMPL PRM grows until it has roadmap_milestones vertices or prm_build_time_s.
+    roadmap_milestones: int = 1000
+    prm_build_time_s: float = 90.0
+    prm_neighbours: int = 10
+    # Edges are collision-checked with no joint moving more than this between checks.
+    edge_step_rad: float = 0.5 * _DEG
+    # A query joins start and goal to this many nearest milestones (lazily checked).
+    query_neighbours: int = 10
+    query_max_edge_checks: int = 60
+    # Fallback when the roadmap has no route: OMPL RRTConnect for at most this long.
+    query_time_s: float = 1.0
+    # OMPL shortcutting: attempts per pass of vertex reduction / shortcutting.
+    shortcut_steps: int = 6
+    # TOPPRA: grid points per path segment (20 put a straight move within 0.05 % of its
+    # optimal time); limits scaled by this fraction because TOPPRA enforces them at grid
+    # points only (the validation checks the true limits).
+    toppra_gridpoints_per_segment: int = 20
+    toppra_limit_fraction: float = 0.95
+    # When the validation finds a limit exceeded: retries with twice the grid, 0.9 x the limits.
+    toppra_retries: int = 2
+    # Dense validation: sample spacing (issue: <= 0.25 deg per joint) and relative slack on the
+    # velocity/acceleration limits (numerical noise only).
+    max_joint_step_rad: float = 0.25 * _DEG
+    limit_tolerance: float = 1e-6
+    # Moves smaller than this (max over joints) are far below encoder resolution: they are
+    # made as a smooth creep of creep_time_s instead of through the planner.
+    min_move_rad: float = 1e-6
+    creep_time_s: float = 0.01
+    # Where roadmaps are cached (None: never cached).
+    cache_dir: str | None = None
+    seed: int = 1
+
+    def __post_init__(self) -> None:
+        positive = (
+            "padding_m",
+            "prm_build_time_s",
+            "edge_step_rad",
+            "query_time_s",
+            "max_joint_step_rad",
+            "min_move_rad",
+            "creep_time_s",
+        )
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ScannerError(f"planner.{name}: expected a positive number, got {value!r}")
+        counts = (
+            "roadmap_milestones",
+            "prm_neighbours",
+            "query_neighbours",
+            "query_max_edge_checks",
+            "shortcut_steps",
+            "toppra_gridpoints_per_segment",
+        )
+        for name in counts:
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise ScannerError(f"planner.{name}: expected an integer >= 1, got {value!r}")
+        if self.toppra_gridpoints_per_segment < 2:
+            raise ScannerError("planner.toppra_gridpoints_per_segment: at least 2")
+        if not 0 < self.toppra_limit_fraction <= 1:
+            raise ScannerError("planner.toppra_limit_fraction: must be in (0, 1]")
+        if self.edge_step_rad > 0.5 * _DEG + 1e-12:
+            raise ScannerError("planner.edge_step_rad: at most 0.5 deg (issue 3)")
+        if self.max_joint_step_rad > 0.25 * _DEG + 1e-12:
+            raise ScannerError("planner.max_joint_step_rad: at most 0.25 deg (issue 3)")
+        if not (0 <= self.limit_tolerance < 0.01):
+            raise ScannerError("planner.limit_tolerance: must be in [0, 0.01)")
+        if not (isinstance(self.toppra_retries, int) and self.toppra_retries >= 0):
+            raise ScannerError("planner.toppra_retries: expected an integer >= 0")
+        # OMPL rejects a zero seed.
+        if not (isinstance(self.seed, int) and self.seed >= 1):
+            raise ScannerError(f"planner.seed: expected an integer >= 1, got {self.seed!r}")
+
+    def roadmap_parameters(self) -> dict:
+        """The fields the roadmap depends on (the cache key), not the query-time ones."""
+        names = ("padding_m", "roadmap_milestones", "prm_build_time_s", "prm_neighbours")
+        return {n: getattr(self, n) for n in names} | {
+            "edge_step_rad": self.edge_step_rad,
+            "seed": self.seed,
+        }
+
+
+@dataclass(frozen=True)
+class PlanFailure:
+    """Why no trajectory was returned: reason in PLAN_FAILURE_REASONS, detail for humans."""
+
+    reason: str
+    detail: str
+
+    def __post_init__(self) -> None:
+        if self.reason not in PLAN_FAILURE_REASONS:
+            raise ValueError(f"unknown reason {self.reason!r}; valid: {PLAN_FAILURE_REASONS}")
+
+
+@dataclass(frozen=True, eq=False)
+class TourLeg:
+    """One viewpoint of a tour: its index in the goals list, the configuration chosen (None if
+    unreachable) and the motion to it from the previous leg's end (or why there is none)."""
+
+    goal_index: int
+    q_goal: np.ndarray | None
+    result: Trajectory | PlanFailure
+
+
+@dataclass(frozen=True, eq=False)
+class Tour:
+    """Legs in visiting order; unreachable viewpoints are legs with a PlanFailure (skipped)."""
+
+    legs: tuple[TourLeg, ...]
+
+    @property
+    def trajectories(self) -> list[Trajectory]:
+        return [leg.result for leg in self.legs if isinstance(leg.result, Trajectory)]
+
+    @property
+    def duration_s(self) -> float:
+        return float(sum(t.duration_s for t in self.trajectories))
+
+    @property
+    def skipped(self) -> list[int]:
+        return [leg.goal_index for leg in self.legs if isinstance(leg.result, PlanFailure)]
+
+
+def _as_configuration(q, name: str) -> np.ndarray:
+    q = np.asarray(q, dtype=float) if not isinstance(q, np.ndarray) else q.astype(float)
+    if q.shape != (6,):
+        raise ScannerError(f"{name}: expected 6 joint positions (rad), got shape {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise ScannerError(f"{name}: joint positions must be finite, got {q.tolist()}")
+    return q
+
+
+class Planner:
+    """Plans collision-free, time-optimal RX60 motions in one work cell (see module docstring)."""
+
+    def __init__(
+        self,
+        workcell: Workcell,
+        X_FC: np.ndarray,
+        X_CR: np.ndarray,
+        config: PlannerConfig,
+        robot: RX60 = RX60(),
+    ) -> None:
+        self.workcell = workcell
+        self.config = config
+        self.robot = robot
+        self.X_FC = np.array(X_FC, float)
+        self.X_MC = rig_centre_offset(np.asarray(X_CR, float))
+        self._check_model_matches(workcell, robot)
+        self._v = np.array(robot.velocity_limits_rad_s)
+        self._a = np.array(robot.acceleration_limits_rad_s2)
+        self.checker = CollisionChecker(workcell, config.padding_m, config.edge_step_rad)
+        seed_ompl(config.seed)
+        self.space = OmplSpace(robot, self.checker)
+        self.roadmap_key = cache_key(self._key_parts())
+        self.roadmap, self.roadmap_from_cache = self._load_or_build()
+        self.graph = RoadmapGraph(self.roadmap, self._v)
+
+    # --- set-up ------------------------------------------------------------------------------
+
+    def _check_model_matches(self, workcell: Workcell, robot: RX60) -> None:
+        plant = workcell.plant
+        if plant.num_positions() != 6:
+            raise ScannerError(
+                "planner: the work cell must have the RX60 as its only moving model "
+                f"(6 joints), it has {plant.num_positions()} positions"
+            )
+        lo, hi = plant.GetPositionLowerLimits(), plant.GetPositionUpperLimits()
+        if not (np.allclose(lo, robot.lower) and np.allclose(hi, robot.upper)):
+            raise ScannerError("planner: the RX60 given differs from the one in the work cell")
+
+    def _key_parts(self) -> dict[str, str]:
+        """Everything the roadmap depends on; any change gives another key (a new roadmap)."""
+        return {
+            "urdf": rx60_urdf(self.robot),
+            "robot": repr(self.robot),
+            "cell": repr(self.workcell.config),
+            "collision_geometry": self.checker.fingerprint(),
+            "X_FC": np.round(self.X_FC, 12).tobytes().hex(),
+            "planner": repr(sorted(self.config.roadmap_parameters().items())),
+            "versions": f"drake {_version('drake')}; ompl {_version('ompl')}; "
+            f"numpy {np.__version__}; scipy {_version('scipy')}; python {sys.version_info[:2]}",
+        }
+
+    def _load_or_build(self) -> tuple[Roadmap, bool]:
+        cache_dir = self.config.cache_dir
+        if cache_dir is not None:
+            cached = load_roadmap(Path(cache_dir), self.roadmap_key)
+            if cached is not None:
+                return cached, True
+        roadmap = build_roadmap(
+            self.space,
+            self.config.roadmap_milestones,
+            self.config.prm_neighbours,
+            self.config.prm_build_time_s,
+            self.roadmap_key,
+        )
+        if cache_dir is not None:
+            save_roadmap(Path(cache_dir), roadmap)
+        return roadmap, False
+
+    # --- queries -----------------------------------------------------------------------------
+
+    def is_collision_free(self, q) -> bool:
+        """Within joint limits and no pair closer than the padding."""
+        q = _as_configuration(q, "q")
+        return self.robot.within_limits(q) and self.checker.is_free(q)
+
+    def estimate_duration_s(self, q_a, q_b) -> float:
+        """Fastest straight rest-to-rest move (exact if the straight move is free, a lower bound
+        otherwise); microseconds, for ordering tours."""
+        q_a, q_b = _as_configuration(q_a, "q_a"), _as_configuration(q_b, "q_b")
+        return float(straight_line_time_s(q_b - q_a, self._v, self._a))
+
+    def reachable(
+        self,
+        viewpoint: Viewpoint,
+        q_current,
+        rolls_rad: Sequence[float] | None = None,
+    ) -> list[np.ndarray]:
+        """Collision-free joint solutions putting the LEFT camera at the viewpoint's pose.
+
+        rolls_rad: camera rolls about the optical axis to try (None: the viewpoint's own roll).
+        Ordered by estimated motion time from q_current; empty when nothing is reachable.
+        """
+        q_current = _as_configuration(q_current, "q_current")
+        self._check_viewpoint(viewpoint)
+        rolls = [viewpoint.roll_rad] if rolls_rad is None else [float(r) for r in rolls_rad]
+        if not all(math.isfinite(r) for r in rolls):
+            raise ScannerError(f"rolls_rad: must be finite, got {rolls}")
+        solutions: list[np.ndarray] = []
+        for roll in rolls:
+            X_WC = camera_pose(dataclasses.replace(viewpoint, roll_rad=roll), self.X_MC)
+            for q in ik_camera(self.robot, X_WC, self.X_FC, q_current):
+                # Rolls 2 pi apart (or a symmetric roll list) give the same configuration twice.
+                if not any(np.allclose(q, other, atol=1e-9) for other in solutions):
+                    solutions.append(q)
+        if not solutions:
+            return []
+        free = self.checker.are_free(solutions)
+        solutions = [q for q, ok in zip(solutions, free) if ok]
+        times = [self.estimate_duration_s(q_current, q) for q in solutions]
+        return [solutions[i] for i in np.argsort(times, kind="stable")]
+
+    def _check_viewpoint(self, viewpoint: Viewpoint) -> None:
+        p_WM = np.asarray(viewpoint.p_WM, float)
+        p_WT = np.asarray(viewpoint.p_WT, float)
+        if p_WM.shape != (3,) or p_WT.shape != (3,):
+            raise ScannerError("viewpoint: p_WM and p_WT must be 3-vectors (m)")
+        if not (np.all(np.isfinite(p_WM)) and np.all(np.isfinite(p_WT))):
+            raise ScannerError(f"viewpoint: positions must be finite, got {viewpoint}")
+        if not math.isfinite(viewpoint.roll_rad):
+            raise ScannerError(f"viewpoint: roll_rad must be finite, got {viewpoint.roll_rad}")
+        if np.linalg.norm(p_WT - p_WM) < 1e-6:
+            raise ScannerError("viewpoint: the camera and its target coincide")
+        if not self.workcell.has_object:
+            return
+        p_WO = np.asarray(self.workcell.config.object_center_m, float)
+        radius = keep_out_radius_m(self.workcell.config)
+        distance = float(np.linalg.norm(p_WM - p_WO))
+        if distance <= radius:
+            raise ScannerError(
+                f"viewpoint: the camera at {p_WM.round(4).tolist()} is {distance:.3f} m from the "
+                f"object centre, inside the object's keep-out radius {radius:.3f} m"
+            )
+        if np.dot(p_WO - p_WM, p_WT - p_WM) <= 0:
+            raise ScannerError(
+                "viewpoint: the object is behind the camera (it looks away from the object)"
+            )
+
+    def _configuration_problem(self, q: np.ndarray) -> str | None:
+        if not self.robot.within_limits(q):
+            lo, hi = self.robot.lower, self.robot.upper
+            bad = [i + 1 for i in range(6) if not lo[i] <= q[i] <= hi[i]]
+            return f"outside the joint limits (joints {bad})"
+        if not self.checker.is_free(q):
+            return f"in collision, {self.checker.describe(q)}"
+        return None
+
+    def plan(self, q_start, q_goal) -> Trajectory | PlanFailure:
+        """A validated time-optimal trajectory from q_start to q_goal, or why there is none.
+
+        The roadmap is queried first (the straight move is its cheapest candidate); when it has
+        no route, RRTConnect gets query_time_s.
+        """
+        return self._plan(q_start, q_goal, use_roadmap=True)
+
+    def plan_from_scratch(self, q_start, q_goal) -> Trajectory | PlanFailure:
+        """The same pipeline with OMPL RRTConnect instead of the roadmap (for comparison)."""
+        return self._plan(q_start, q_goal, use_roadmap=False)
+
+    def _plan(self, q_start, q_goal, use_roadmap: bool) -> Trajectory | PlanFailure:
+        q_start = _as_configuration(q_start, "q_start")
+        q_goal = _as_configuration(q_goal, "q_goal")
+        problem = self._configuration_problem(q_start)
+        if problem:
+            return PlanFailure("start_invalid", f"start {problem}")
+        problem = self._configuration_problem(q_goal)
+        if problem:
+            return PlanFailure("goal_invalid", f"goal {problem}")
+        if np.abs(q_goal - q_start).max() < self.config.min_move_rad:
+            # Too small to time-parameterise (TOPPRA's time grid would collapse): a creep.
+            trajectory = creep(q_start, q_goal, self.config.creep_time_s)
+            report = self.validate(trajectory, q_start, q_goal)
+            if not report.ok:
+                return PlanFailure("validation_failed", f"creep: {report.detail}")
+            return dataclasses.replace(
+                trajectory, stats=PlanStats("hold", "none", 0.0, 0.0, 0.0, 0.0, 2)
+            )
+        t0 = time.perf_counter()
+        waypoints = None
+        if use_roadmap:
+            waypoints = self.graph.query(
+                q_start,
+                q_goal,
+                self.config.query_neighbours,
+                self.checker.edge_free,
+                self.config.query_max_edge_checks,
+            )
+        method = "direct" if waypoints is not None and len(waypoints) == 2 else "roadmap"
+        if waypoints is None:
+            waypoints = solve_rrtconnect(self.space, q_start, q_goal, self.config.query_time_s)
+            method = "rrtconnect"
+        search_s = time.perf_counter() - t0
+        if waypoints is None:
+            where = "the roadmap has no route and " if use_roadmap else ""
+            return PlanFailure(
+                "no_path",
+                f"no collision-free path: {where}RRTConnect found none in "
+                f"{self.config.query_time_s} s",
+            )
+        return self._finish(q_start, q_goal, waypoints, method, search_s)
+
+    def _finish(
+        self,
+        q_start: np.ndarray,
+        q_goal: np.ndarray,
+        waypoints: list[np.ndarray],
+        method: str,
+        search_s: float,
+    ) -> Trajectory | PlanFailure:
+        """Shortcut, time-parameterise and validate; fall back from smooth to stop corners."""
+        t0 = time.perf_counter()
+        path = np.array(shortcut(self.space, waypoints, self.config.shortcut_steps))
+        path[0], path[-1] = q_start, q_goal
+        path = merge_close_waypoints(path, self.config.min_move_rad)
+        simplify_s = time.perf_counter() - t0
+        timing_s = validation_s = 0.0
+        reports: list[str] = []
+        modes = (SMOOTH,) if len(path) == 2 else (SMOOTH, STOP)
+        for corners in modes:
+            gridpoints = self.config.toppra_gridpoints_per_segment * (len(path) - 1)
+            fraction = self.config.toppra_limit_fraction
+            for _ in range(1 + self.config.toppra_retries):
+                t0 = time.perf_counter()
+                try:
+                    trajectory = time_parameterise(
+                        path, self.workcell.plant, self.robot, corners, gridpoints, fraction
+                    )
+                except RuntimeError as error:  # Drake reports a degenerate path this way
+                    trajectory = None
+                    reports.append(f"{corners}: TOPPRA failed ({error})")
+                t1 = time.perf_counter()
+                timing_s += t1 - t0
+                if trajectory is None:
+                    reports.append(f"{corners}: TOPPRA found no parameterisation")
+                    break
+                report = self.validate(trajectory, q_start, q_goal)
+                validation_s += time.perf_counter() - t1
+                if report.ok:
+                    stats = PlanStats(
+                        method,
+                        corners,
+                        search_s,
+                        simplify_s,
+                        timing_s,
+                        validation_s,
+                        len(waypoints),
+                    )
+                    return dataclasses.replace(trajectory, stats=stats)
+                reports.append(f"{corners}: {report.failed_check} ({report.detail})")
+                if report.failed_check not in ("velocity_limit", "acceleration_limit"):
+                    break
+                # TOPPRA holds the limits at its grid points only: a finer grid and a larger
+                # margin bring the peaks between grid points under the true limits.
+                gridpoints *= 2
+                fraction *= 0.9
+        return PlanFailure("validation_failed", "; ".join(reports))
+
+    def validate(self, trajectory: Trajectory, q_start, q_goal) -> ValidationReport:
+        """The independent dense check every returned trajectory has passed."""
+        return validate_trajectory(
+            trajectory,
+            _as_configuration(q_start, "q_start"),
+            _as_configuration(q_goal, "q_goal"),
+            self.checker,
+            self.robot,
+            self.config.max_joint_step_rad,
+            self.config.limit_tolerance,
+        )
+
+    def plan_tour(
+        self, q_start, goals: Sequence[Sequence[np.ndarray]], reorder: bool = False
+    ) -> Tour:
+        """Visit several viewpoints, each given by its alternative configurations.
+
+        reorder=False keeps the given order; True first orders the viewpoints greedily by
+        estimated motion time (nearest next, then 2-opt). For the chosen order, the
+        alternatives are picked to minimise the estimated total time (dynamic programming);
+        a leg that cannot be planned tries the viewpoint's other alternatives, and a viewpoint
+        none of whose alternatives can be reached is skipped (a "goal_unreachable" leg).
+        """
+        q = _as_configuration(q_start, "q_start")
+        options = [
+            [_as_configuration(g, f"goals[{i}]") for g in alt] for i, alt in enumerate(goals)
+        ]
+        order = list(range(len(options)))
+        if reorder:
+            order = self._order_viewpoints(q, options)
+        legs: list[TourLeg] = []
+        for position, index in enumerate(order):
+            remaining = [options[i] for i in order[position:]]
+            ranked = self._rank_first_choice(q, remaining)
+            result: Trajectory | PlanFailure = PlanFailure(
+                "goal_unreachable", f"viewpoint {index} has no configuration"
+            )
+            reasons = []
+            for choice in ranked:
+                attempt = self.plan(q, options[index][choice])
+                if isinstance(attempt, Trajectory):
+                    result = attempt
+                    legs.append(TourLeg(index, options[index][choice], attempt))
+                    q = options[index][choice]
+                    break
+                reasons.append(f"alternative {choice}: {attempt.reason} ({attempt.detail})")
+            else:
+                if reasons:
+                    result = PlanFailure("goal_unreachable", "; ".join(reasons))
+                legs.append(TourLeg(index, None, result))
+        return Tour(tuple(legs))
+
+    def _rank_first_choice(self, q: np.ndarray, remaining: list[list[np.ndarray]]) -> list[int]:
+        """Alternatives of remaining[0], best first by the estimated time of the rest of the
+        tour (Viterbi over the alternatives of every later viewpoint that has any)."""
+        if not remaining or not remaining[0]:
+            return []
+        first = np.array(remaining[0])
+        total = straight_line_time_s(first - q[None, :], self._v, self._a)
+        later = [np.array(alternatives) for alternatives in remaining[1:] if len(alternatives)]
+        if later:
+            # cost_to_go[j]: best estimated time from alternative j of later[k] to the end.
+            cost_to_go = np.zeros(len(later[-1]))
+            for here, nxt in zip(later[-2::-1], later[:0:-1]):
+                step = straight_line_time_s(nxt[None, :, :] - here[:, None, :], self._v, self._a)
+                cost_to_go = np.min(step + cost_to_go[None, :], axis=1)
+            step = straight_line_time_s(later[0][None, :, :] - first[:, None, :], self._v, self._a)
+            total = total + np.min(step + cost_to_go[None, :], axis=1)
+        return [int(i) for i in np.argsort(total, kind="stable")]
+
+    def _order_viewpoints(self, q: np.ndarray, options: list[list[np.ndarray]]) -> list[int]:
+        """Nearest-next then 2-opt on the estimated time between viewpoints' closest
+        alternatives; viewpoints without any alternative go last."""
+        live = [i for i, alternatives in enumerate(options) if alternatives]
+        dead = [i for i, alternatives in enumerate(options) if not alternatives]
+        if len(live) <= 1:
+            return live + dead
+
+        def gap(a: list[np.ndarray], b: list[np.ndarray]) -> float:
+            d = np.array(b)[None, :, :] - np.array(a)[:, None, :]
+            return float(straight_line_time_s(d, self._v, self._a).min())
+
+        cost = {(i, j): gap(options[i], options[j]) for i in live for j in live if i != j}
+        start = {j: gap([q], options[j]) for j in live}
+        order = [min(live, key=lambda j: start[j])]
+        while len(order) < len(live):
+            order.append(min((j for j in live if j not in order), key=lambda j: cost[order[-1], j]))
+
+        def length(o: list[int]) -> float:
+            return start[o[0]] + sum(cost[a, b] for a, b in zip(o[:-1], o[1:]))
+
+        improved = True
+        while improved:
+            improved = False
+            for i in range(len(order) - 1):
+                for j in range(i + 1, len(order)):
+                    candidate = order[:i] + order[i : j + 1][::-1] + order[j + 1 :]
+                    if length(candidate) < length(order) - 1e-12:
+                        order, improved = candidate, True
+        return order + dead
+
+
+def _version(distribution: str) -> str:
+    try:
+        return importlib.metadata.version(distribution)
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"

@@ -1,0 +1,184 @@
+"""The calibration file that `scanner calibrate` writes and `scan` / `reconstruct` read.
+
+YAML, SI units (metres, radians, pixels for intrinsics), one key per quantity:
+
+    schema: scanner.calibration/1
+    created: 2026-11-23T12:00:00+00:00
+    source: simulation | offline | ...          # free text: where the data came from
+    X_FC: [[...], [...], [...], [0, 0, 0, 1]]   # left optical frame C in the flange F (4x4, m)
+    stereo_camera: {schema: scanner.stereo_camera/1, ...}   # or null for one camera
+    camera: {image_size: [w, h], K: ..., distortion: ...}  # one camera (only when no stereo)
+    X_WB: [[...]]                               # board in the robot base (information)
+    board: {kind: chessboard, cols: 10, rows: 7, spacing_m: 0.02, ...}
+    quality:                                    # what the calibration measured
+      reprojection_rms_px: 0.12
+      stereo_rms_px: 0.08                        # null for one camera
+      poses_used: 18
+      poses_outliers: [name, ...]
+      poses_board_not_found: [name, ...]
+      board_scatter_m: [sx, sy, sz]
+      hand_eye_seed: park
+
+`load_calibration` validates every field and raises ScannerError naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from reconstruction.camera_model import (
+    CameraModelError,
+    PinholeCamera,
+    StereoCamera,
+    stereo_camera_from_dict,
+    stereo_camera_to_dict,
+)
+from reconstruction.errors import ScannerError
+
+CALIBRATION_SCHEMA = "scanner.calibration/1"
+
+
+@dataclass(frozen=True, eq=False)
+class Calibration:
+    """A calibrated camera rig and hand-eye pose.
+
+    X_FC: pose of the left optical frame C in the flange F (4x4, m). stereo: the calibrated pair,
+    or None when one camera was calibrated (then `camera` is that camera). X_WB: the board pose
+    found in the base (information only). quality: the numbers the calibration reported.
+    """
+
+    X_FC: np.ndarray
+    stereo: StereoCamera | None
+    camera: PinholeCamera
+    source: str = "unknown"
+    created: str = ""
+    X_WB: np.ndarray | None = None
+    board: dict = field(default_factory=dict)
+    quality: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        X = np.array(self.X_FC, float)
+        if X.shape != (4, 4) or not np.all(np.isfinite(X)):
+            raise ScannerError("X_FC: expected a finite 4x4 matrix")
+        if not np.allclose(X[3], [0, 0, 0, 1]) or not np.allclose(
+            X[:3, :3] @ X[:3, :3].T, np.eye(3), atol=1e-6
+        ):
+            raise ScannerError("X_FC: not a rigid transform (rotation + translation)")
+        X.setflags(write=False)
+        object.__setattr__(self, "X_FC", X)
+        if self.X_WB is not None:
+            W = np.array(self.X_WB, float)
+            if W.shape != (4, 4):
+                raise ScannerError("X_WB: expected a 4x4 matrix")
+            W.setflags(write=False)
+            object.__setattr__(self, "X_WB", W)
+        if self.stereo is not None and self.camera is not self.stereo.left:
+            object.__setattr__(self, "camera", self.stereo.left)
+
+
+def _plain(value):
+    """YAML-safe plain Python values (numpy scalars/arrays -> floats/lists)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def calibration_to_dict(calibration: Calibration) -> dict:
+    cam = calibration.camera
+    return {
+        "schema": CALIBRATION_SCHEMA,
+        "created": calibration.created
+        or datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "source": calibration.source,
+        "X_FC": calibration.X_FC.tolist(),
+        "stereo_camera": None
+        if calibration.stereo is None
+        else stereo_camera_to_dict(calibration.stereo),
+        "camera": None
+        if calibration.stereo is not None
+        else {
+            "image_size": [cam.width, cam.height],
+            "K": cam.K.tolist(),
+            "distortion": cam.distortion.tolist(),
+        },
+        "X_WB": None if calibration.X_WB is None else calibration.X_WB.tolist(),
+        "board": _plain(calibration.board),
+        "quality": _plain(calibration.quality),
+    }
+
+
+def save_calibration(calibration: Calibration, path: Path) -> Path:
+    """Write atomically (temporary file, then rename)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(yaml.safe_dump(calibration_to_dict(calibration), sort_keys=False))
+    os.replace(tmp, path)
+    return path
+
+
+def _camera_from_dict(d, where: str) -> PinholeCamera:
+    if not isinstance(d, dict):
+        raise ScannerError(f"{where}: expected a mapping with image_size, K and distortion")
+    try:
+        w, h = d["image_size"]
+        return PinholeCamera(d["K"], d["distortion"], int(w), int(h))
+    except (KeyError, TypeError, ValueError) as e:
+        raise ScannerError(f"{where}: missing or malformed field ({e})") from None
+    except CameraModelError as e:
+        raise ScannerError(f"{where}: {e}") from None
+
+
+def calibration_from_dict(d: dict, where: str = "calibration") -> Calibration:
+    if not isinstance(d, dict):
+        raise ScannerError(f"{where}: not a calibration file (expected a mapping)")
+    if d.get("schema") != CALIBRATION_SCHEMA:
+        raise ScannerError(
+            f"{where}: schema is {d.get('schema')!r}, expected {CALIBRATION_SCHEMA!r}"
+        )
+    if "X_FC" not in d:
+        raise ScannerError(f"{where}: missing key 'X_FC'")
+    stereo = None
+    if d.get("stereo_camera") is not None:
+        stereo = stereo_camera_from_dict(d["stereo_camera"], f"{where}:stereo_camera")
+        camera = stereo.left
+    else:
+        camera = _camera_from_dict(d.get("camera"), f"{where}:camera")
+    try:
+        return Calibration(
+            np.array(d["X_FC"], float),
+            stereo,
+            camera,
+            str(d.get("source", "unknown")),
+            str(d.get("created", "")),
+            None if d.get("X_WB") is None else np.array(d["X_WB"], float),
+            dict(d.get("board") or {}),
+            dict(d.get("quality") or {}),
+        )
+    except (TypeError, ValueError) as e:
+        raise ScannerError(f"{where}: malformed matrix ({e})") from None
+    except ScannerError as e:
+        raise ScannerError(f"{where}: {e}") from None
+
+
+def load_calibration(path: Path) -> Calibration:
+    """The calibration in `path` (what `--calibration FILE` reads), validated."""
+    path = Path(path)
+    try:
+        d = yaml.safe_load(path.read_text())
+    except OSError as e:
+        raise ScannerError(f"{path}: cannot read calibration ({e.strerror})") from None
+    except yaml.YAMLError as e:
+        raise ScannerError(f"{path}: calibration is not valid YAML ({e})") from None
+    return calibration_from_dict(d, str(path))

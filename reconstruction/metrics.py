@@ -1,0 +1,177 @@
+"""Accuracy of a reconstruction against the true surface, and of a hand-eye estimate.
+
+Distances are computed in metres; the report keys are in millimetres and degrees (the printing
+edge, named by unit). Conventions, for result R and truth T:
+- result -> truth: exact point-to-triangle distance from every result point to the true mesh;
+- truth -> result: from points sampled uniformly by area on the true mesh to the result (exact
+  point-to-triangle when the result is a mesh, nearest point when it is a cloud);
+- chamfer_mm: the mean of the two directions' mean distances;
+- fscore at tau: harmonic mean of precision (result points within tau of the truth) and recall
+  (truth samples within tau of the result); completeness_2mm is that recall at 2 mm;
+- accuracy_p90_mm: 90th percentile of result -> truth.
+The "observed" variants restrict the truth samples to those visible from at least one camera
+(not occluded, facing it within `max_incidence_rad`): the RX60 reaches only a band of viewing
+directions, so whole-object completeness mixes sensing quality with coverage.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from reconstruction.poses import pose_difference
+
+
+@dataclass(frozen=True, eq=False)
+class TriangleSurface:
+    """A triangle mesh (V, 3) metres, (M, 3) indices, as the metrics see it."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceSamples:
+    points: np.ndarray
+    normals: np.ndarray
+
+
+def sample_surface(surface: TriangleSurface, n: int, seed: int = 0) -> SurfaceSamples:
+    """n points uniformly by area (triangle chosen by area, then uniform barycentric)."""
+    rng = np.random.default_rng(seed)
+    v = np.asarray(surface.vertices, float)
+    t = np.asarray(surface.triangles, np.int64)
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    cross = np.cross(b - a, c - a)
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    k = rng.choice(len(t), size=n, p=area / area.sum())
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    points = (1 - s)[:, None] * a[k] + (s * (1 - r2))[:, None] * b[k] + (s * r2)[:, None] * c[k]
+    normals = cross[k] / np.maximum(np.linalg.norm(cross[k], axis=1, keepdims=True), 1e-300)
+    return SurfaceSamples(points, normals)
+
+
+def _scene(surface: TriangleSurface, origin: np.ndarray) -> o3d.t.geometry.RaycastingScene:
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor((np.asarray(surface.vertices) - origin).astype(np.float32)),
+        o3d.core.Tensor(np.asarray(surface.triangles).astype(np.uint32)),
+    )
+    return scene
+
+
+def distances_to_mesh(points: np.ndarray, surface: TriangleSurface) -> np.ndarray:
+    """Exact point-to-triangle distances (m). Open3D computes in float32, so coordinates are
+    taken relative to the mesh's centre first: 1e-7 relative of 0.2 m, not of 1 m."""
+    origin = np.asarray(surface.vertices).mean(axis=0)
+    query = (np.asarray(points) - origin).astype(np.float32)
+    return _scene(surface, origin).compute_distance(o3d.core.Tensor(query)).numpy().astype(float)
+
+
+def distances_to_points(points: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Nearest-neighbour distances (m) from each point to the target cloud."""
+    return cKDTree(np.asarray(target)).query(np.asarray(points))[0]
+
+
+def visible_mask(
+    samples: SurfaceSamples,
+    surface: TriangleSurface,
+    camera_centres_W: Sequence[np.ndarray],
+    max_incidence_rad: float = math.radians(80.0),
+    offset_m: float = 1e-4,
+) -> np.ndarray:
+    """True for samples that at least one camera centre sees: the sample faces it (angle
+    between its outward normal and the direction to the camera below `max_incidence_rad`) and
+    the segment to it hits no triangle. Rays start `offset_m` off the surface so that they do
+    not hit their own triangle."""
+    origin = np.asarray(surface.vertices).mean(axis=0)
+    scene = _scene(surface, origin)
+    p = samples.points - origin
+    seen = np.zeros(len(p), bool)
+    for centre in camera_centres_W:
+        to_cam = np.asarray(centre) - origin - p
+        dist = np.linalg.norm(to_cam, axis=1)
+        d = to_cam / dist[:, None]
+        facing = np.einsum("ij,ij->i", d, samples.normals) > math.cos(max_incidence_rad)
+        todo = facing & ~seen
+        if not todo.any():
+            continue
+        start = p[todo] + offset_m * d[todo]
+        rays = np.hstack([start, d[todo]]).astype(np.float32)
+        hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        clear = hit >= dist[todo] - offset_m
+        idx = np.nonzero(todo)[0]
+        seen[idx[clear]] = True
+    return seen
+
+
+def surface_metrics(
+    result_to_truth_m: np.ndarray,
+    truth_to_result_m: np.ndarray,
+    observed: np.ndarray | None = None,
+) -> dict[str, float]:
+    """The report's keys from the two distance sets (m in, mm out). `observed`: mask over the
+    truth samples; adds the *_observed_* keys and `observed_fraction`."""
+    d_rt = np.asarray(result_to_truth_m, float)
+    d_tr = np.asarray(truth_to_result_m, float)
+    out = {
+        "chamfer_mm": 1e3 * 0.5 * (d_rt.mean() + d_tr.mean()),
+        "fscore_1mm": fscore(d_rt, d_tr, 0.001),
+        "fscore_2mm": fscore(d_rt, d_tr, 0.002),
+        "completeness_2mm": float(np.mean(d_tr < 0.002)),
+        "accuracy_p90_mm": 1e3 * float(np.percentile(d_rt, 90)),
+        "accuracy_mean_mm": 1e3 * float(d_rt.mean()),
+    }
+    if observed is not None:
+        obs = d_tr[np.asarray(observed, bool)]
+        out["observed_fraction"] = float(np.mean(observed))
+        if len(obs):
+            out["chamfer_observed_mm"] = 1e3 * 0.5 * (d_rt.mean() + obs.mean())
+            out["fscore_observed_1mm"] = fscore(d_rt, obs, 0.001)
+            out["completeness_observed_2mm"] = float(np.mean(obs < 0.002))
+            out["completeness_observed_1mm"] = float(np.mean(obs < 0.001))
+    return {k: float(v) for k, v in out.items()}
+
+
+def fscore(result_to_truth_m: np.ndarray, truth_to_result_m: np.ndarray, tau_m: float) -> float:
+    precision = float(np.mean(np.asarray(result_to_truth_m) < tau_m))
+    recall = float(np.mean(np.asarray(truth_to_result_m) < tau_m))
+    return 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
+
+
+def evaluate_surface(
+    result_points: np.ndarray,
+    truth: TriangleSurface,
+    result_mesh: TriangleSurface | None = None,
+    camera_centres_W: Sequence[np.ndarray] | None = None,
+    n_samples: int = 200_000,
+    seed: int = 0,
+    max_incidence_rad: float = math.radians(80.0),
+) -> dict[str, float]:
+    """Metrics of a result (its points, and its mesh when it is one: then the result -> truth
+    direction uses the mesh's own area-uniform samples) against the true mesh."""
+    samples = sample_surface(truth, n_samples, seed)
+    if result_mesh is not None:
+        result_points = sample_surface(result_mesh, n_samples, seed + 1).points
+        d_tr = distances_to_mesh(samples.points, result_mesh)
+    else:
+        d_tr = distances_to_points(samples.points, result_points)
+    d_rt = distances_to_mesh(result_points, truth)
+    observed = (
+        None
+        if camera_centres_W is None
+        else visible_mask(samples, truth, camera_centres_W, max_incidence_rad)
+    )
+    return surface_metrics(d_rt, d_tr, observed)
+
+
+def handeye_error(X_FC_estimate: np.ndarray, X_FC_true: np.ndarray) -> dict[str, float]:
+    """Translation of the camera origin (mm) and rotation angle (deg) between two X_FC."""
+    dt, dr = pose_difference(X_FC_estimate, X_FC_true)
+    return {"handeye_error_mm": 1e3 * dt, "handeye_error_deg": math.degrees(dr)}

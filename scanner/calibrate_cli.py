@@ -1,0 +1,145 @@
+"""`scanner calibrate` arguments -> configuration -> run -> a few printed lines."""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import math
+import re
+from dataclasses import replace
+from pathlib import Path
+
+from reconstruction.boards import BoardSpec
+from reconstruction.errors import ScannerError
+from reconstruction.pose_files import pose_format
+from scanner.calibrate import (
+    CalibrateConfig,
+    OfflineOptions,
+    calibrate_directory,
+    load_calibrate_config,
+)
+from scanner.calibrate_eye_to_hand import run_eye_to_hand
+from scanner.calibrate_sim import run_simulated
+from scanner.progress import ProgressBar
+
+
+def _board_size(text: str) -> tuple[int, int]:
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
+    if not m:
+        raise ScannerError(f"--board-size: expected COLSxROWS such as 7x11, got '{text}'")
+    return int(m.group(1)), int(m.group(2))
+
+
+def board_from_args(args: argparse.Namespace, base: BoardSpec | None) -> BoardSpec | None:
+    """The board from the flags on top of `base` (None: no flag and no base -> None)."""
+    changes = {}
+    if args.board is not None:
+        changes["kind"] = args.board
+    if args.board_size is not None:
+        changes["cols"], changes["rows"] = _board_size(args.board_size)
+    if args.board_spacing is not None:
+        changes["spacing_m"] = args.board_spacing
+    if args.marker_size is not None:
+        changes["marker_m"] = args.marker_size
+    if args.dictionary is not None:
+        changes["dictionary"] = args.dictionary
+    if args.inverted:
+        changes["inverted"] = True
+    if not changes:
+        return base
+    if base is None:
+        if "kind" not in changes or "cols" not in changes or "spacing_m" not in changes:
+            raise ScannerError(
+                "describe the board with --board KIND --board-size COLSxROWS --board-spacing M"
+            )
+        if changes["kind"] == "charuco" and "marker_m" not in changes:
+            changes["marker_m"] = 0.75 * changes["spacing_m"]
+        return BoardSpec(**changes)
+    return replace(base, **changes)
+
+
+def _stamp() -> str:
+    return datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+
+
+def _config(args: argparse.Namespace) -> CalibrateConfig:
+    config = load_calibrate_config(args.config)
+    if args.seed is not None:
+        config = replace(config, error_model=replace(config.error_model, seed=args.seed))
+    if args.stations is not None:
+        config = replace(config, stations=replace(config.stations, count=args.stations))
+    board = board_from_args(args, config.board)
+    if board is not config.board:
+        config = replace(config, board=board)
+    e2h = config.eye_to_hand
+    if args.held_out is not None:
+        e2h = replace(e2h, held_out=args.held_out)
+    if args.grid_spacing is not None:
+        e2h = replace(e2h, grid_spacing_m=args.grid_spacing)
+    return replace(config, eye_to_hand=e2h)
+
+
+def _print_summary(report: dict, out: Path, calibration_file: Path) -> None:
+    line = f"calibration: {report['poses_used']}/{report['poses']} poses used"
+    if report["poses_outliers"]:
+        line += f", outliers rejected: {', '.join(report['poses_outliers'])}"
+    if report["poses_board_not_found"]:
+        line += f", board not found in: {', '.join(report['poses_board_not_found'])}"
+    print(line)
+    if report.get("stereo_rms_px") is not None:
+        print(f"stereo RMS reprojection: {report['stereo_rms_px']:.3f} px")
+    scatter = max(report["board_scatter_m"]) * 1000
+    print(
+        f"hand-eye RMS reprojection: {report['reprojection_rms_px']:.3f} px; "
+        f"board-in-base scatter {scatter:.2f} mm (largest axis std)"
+    )
+    truth = report.get("truth")
+    if truth:
+        print(
+            f"error against the simulator's truth: {truth['handeye_error_m'] * 1000:.3f} mm, "
+            f"{math.degrees(truth['handeye_error_rad']):.4f} deg"
+        )
+    print(f"calibration file: {calibration_file}")
+    print(f"report: {out / 'results' / 'report.txt'}")
+
+
+def run_calibrate_command(args: argparse.Namespace) -> int:
+    config = _config(args)
+    if args.eye_to_hand:
+        if args.offline is not None:
+            raise ScannerError("--eye-to-hand runs in the simulator; do not give --offline")
+        out = args.out or Path("calibrations") / f"eye-to-hand-{_stamp()}"
+        with ProgressBar("points") as bar:
+            report = run_eye_to_hand(config, out, progress=bar.update)
+        h = report["held_out"]
+        print(
+            f"eye-to-hand: {report['fit_points_used']} grid points used, "
+            f"{report['fit_points_rejected']} rejected; held-out error over {h['count']} points: "
+            f"mean {h['mean_distance_m'] * 1000:.3f} mm, std {h['std_distance_m'] * 1000:.3f} mm"
+        )
+        print(f"report: {out / 'results' / 'eye_to_hand_report.txt'}")
+        return 0
+    if args.offline is not None:
+        root = args.offline
+        is_store = (root / "scan.yaml").is_file()
+        board = board_from_args(args, None)
+        fmt = pose_format(
+            args.pose_convention,
+            layout=args.pose_layout,
+            euler=args.euler,
+            length_unit=args.length_unit,
+            angle_unit=args.angle_unit,
+            inverse=True if args.inverse_poses else None,
+        )
+        options = OfflineOptions(board, fmt, args.pose_file, ".txt", args.intrinsics)
+        out = args.out
+        if out is None and not is_store:
+            out = Path("calibrations") / f"{root.name}-{_stamp()}"
+        run = calibrate_directory(root, options, config.solver, out)
+        _print_summary(run.report, run.out_dir, run.calibration_file)
+        return 0
+    out = args.out or Path("calibrations") / f"calib-{_stamp()}"
+    with ProgressBar("stations") as bar:
+        run = run_simulated(config, out, args.force, progress=bar.update)
+    _print_summary(run.report, run.out_dir, run.calibration_file)
+    return 0

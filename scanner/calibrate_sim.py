@@ -1,0 +1,198 @@
+"""`scanner calibrate` in simulation: stations visited on the planner's trajectories, captured
+into a calibration directory, then solved exactly like recorded data."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from planners.planner import PlanFailure, Planner
+from reconstruction.camera_model import (
+    StereoCamera,
+    stereo_camera_to_dict,
+)
+from reconstruction.errors import ScannerError
+from robots import camera_tool
+from robots.calibration_board import (
+    BoardFixture,
+    board_fingerprint,
+    write_board_obj,
+)
+from robots.kinematics import Kinematics
+from robots.simulation import Simulation, cache_dir, create_simulation
+from robots.truth import save_truth
+from robots.workcell import build_workcell
+from scanner.calibrate import (
+    CalibrateConfig,
+    CalibrationRun,
+    MoveFn,
+    OfflineOptions,
+    calibrate_directory,
+)
+from scanner.calibration_stations import plan_stations
+from scanner.captures import Capture, CaptureStore, atomic_write_text
+from scanner.typed_yaml import to_dict
+
+
+# --------------------------------------------------------------------------------------------
+# Simulated eye-in-hand calibration
+# --------------------------------------------------------------------------------------------
+@dataclass
+class CalibrationWorld:
+    """The simulated cell with the board, and the software's (nominal) view of it."""
+
+    sim: Simulation
+    stereo: StereoCamera  # nominal
+    X_FC: np.ndarray  # nominal
+    X_WB: np.ndarray  # true board pose (evaluation only)
+    kinematics: Kinematics
+    planner: Planner  # on the software's view of the cell (board, no object)
+
+    def is_free(self, q: np.ndarray) -> bool:
+        return self.planner.is_collision_free(q)
+
+
+def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> CalibrationWorld:
+    """The true simulated cell (board on its stand unless with_board is False, no object) and a
+    collision checker on the software's view of the same cell."""
+    stereo = config.camera.stereo_camera()
+    X_FC = camera_tool.nominal_X_FC(stereo.baseline_m)
+    fixtures = ()
+    if with_board:
+        directory = cache_dir() / "boards" / board_fingerprint(config.board)
+        fixtures = (
+            BoardFixture(config.board, config.placement, write_board_obj(config.board, directory)),
+        )
+    sim = create_simulation(
+        config.cell, None, config.error_model, stereo, X_FC, extras=(*fixtures, *extras)
+    )
+    planner_cell = build_workcell(
+        config.cell, None, X_FC, stereo.X_CR, extras=fixtures, include_object=False
+    )
+    planner_config = replace(
+        config.planner, cache_dir=config.planner.cache_dir or str(cache_dir() / "roadmaps")
+    )
+    return CalibrationWorld(
+        sim,
+        stereo,
+        X_FC,
+        config.placement.X_WB(config.board),
+        Kinematics(),
+        Planner(planner_cell, X_FC, stereo.X_CR, planner_config),
+    )
+
+
+def planner_reachable(world: CalibrationWorld):
+    """Collision-free IK solutions (with the planner's padding) for a look-at viewpoint."""
+    q0 = world.sim.robot.joint_positions()
+    return lambda viewpoint: world.planner.reachable(viewpoint, q0)
+
+
+class PlannedMover:
+    """`move_to` through the motion planner: a validated, collision-free trajectory, executed."""
+
+    def __init__(self, plan: Callable, robot) -> None:
+        self._plan = plan
+        self._robot = robot
+        self.last_failure = ""
+
+    def __call__(self, q: np.ndarray) -> bool:
+        result = self._plan(self._robot.joint_positions(), q)
+        if isinstance(result, PlanFailure):
+            self.last_failure = f"{result.reason}: {result.detail}"
+            return False
+        self._robot.execute(result.to_joint_trajectory())
+        return True
+
+
+def run_simulated(
+    config: CalibrateConfig,
+    out_dir: Path,
+    force: bool = False,
+    move_to: MoveFn | None = None,
+    reachable=None,
+    progress: Callable[[int, int], None] | None = None,
+) -> CalibrationRun:
+    """Plan stations, capture each into a calibration directory, then calibrate from it."""
+
+    t0 = time.perf_counter()
+    out_dir = Path(out_dir)
+    if out_dir.exists() and any(out_dir.iterdir()) and not force:
+        raise ScannerError(
+            f"{out_dir}: exists and is not empty; use --force to replace it, or "
+            f"--offline {out_dir} to calibrate again from its captures"
+        )
+    world = build_world(config)
+    sim = world.sim
+    plan = plan_stations(
+        config.stations,
+        config.board,
+        world.X_WB,
+        world.stereo,
+        world.X_FC,
+        reachable or planner_reachable(world),
+        sim.robot.joint_positions(),
+    )
+    move_to = move_to or PlannedMover(world.planner.plan, sim.robot)
+    manifest = {
+        "kind": "calibration",
+        "board": to_dict(config.board),
+        "placement": to_dict(config.placement),
+        "camera": stereo_camera_to_dict(world.stereo),
+        "X_FC_nominal": world.X_FC.tolist(),
+        "pose_count": len(plan.stations),
+        "stations": [
+            {
+                "index": s.index,
+                "p_WM": list(s.viewpoint.p_WM),
+                "p_WT": list(s.viewpoint.p_WT),
+                "roll_rad": s.viewpoint.roll_rad,
+                "q_rad": s.q.tolist(),
+            }
+            for s in plan.stations
+        ],
+        "stations_reachable": plan.reachable,
+        "stations_candidates": plan.candidates,
+    }
+    store = CaptureStore.create(out_dir, manifest, force)
+    save_truth(sim.truth, store.root / "truth.yaml", {"X_WB": world.X_WB.tolist()})
+    skipped = []
+    t_capture = time.perf_counter()
+    for k, station in enumerate(plan.stations):
+        if not move_to(station.q):
+            reason = getattr(move_to, "last_failure", "") or "no collision-free path"
+            skipped.append({"index": station.index, "reason": reason})
+            continue
+        pair = sim.camera.capture()
+        q = sim.robot.joint_positions()
+        store.write_capture(
+            Capture(
+                station.index,
+                len(plan.stations),
+                q,
+                world.kinematics.X_WF(q),
+                pair.stamp_s,
+                pair.left,
+                pair.right,
+            )
+        )
+        if progress:
+            progress(k + 1, len(plan.stations))
+    capture_s = time.perf_counter() - t_capture
+    store.update_manifest(status="captured", skipped_stations=skipped)
+    run = calibrate_directory(
+        store.root,
+        OfflineOptions(board=config.board),
+        config.solver,
+        extra_report={"stations_skipped": skipped, "capture_s": capture_s},
+    )
+    run.report["calibrate_s"] = time.perf_counter() - t0
+    atomic_write_text(
+        store.root / "results" / "report.json", json.dumps(run.report, indent=2) + "\n"
+    )
+    return run

@@ -1,0 +1,352 @@
+"""The `scanner` command line."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from reconstruction.errors import ScannerError
+
+BUILTIN_HELP = "vase, bracket, pebble"
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="scanner",
+        description="Eye-in-hand 3D modelling with a Staubli RX60 and a wrist stereo camera. "
+        "Runs in a Drake simulation unless a hardware driver is configured.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    scan = sub.add_parser(
+        "scan",
+        help="scan an object: plan viewpoints, move, capture stereo pairs, reconstruct",
+        description="Scan an object in the simulated work cell: viewpoints on a sphere around it, "
+        "collision-free motions, stereo captures saved to a scan directory, then reconstruction.",
+    )
+    scan.add_argument(
+        "--object",
+        default=None,
+        help=f"built-in object ({BUILTIN_HELP}) or a mesh file (.obj/.ply/.stl); default vase",
+    )
+    scan.add_argument(
+        "--size",
+        type=_positive_float,
+        default=None,
+        help="largest extent of the object in metres (default 0.2)",
+    )
+    scan.add_argument("--views", type=int, default=None, help="number of views (default 24)")
+    scan.add_argument(
+        "--radius",
+        type=_positive_float,
+        default=None,
+        help="distance of the rig from the scan centre in metres (default 0.5)",
+    )
+    scan.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="scan directory to create (default scans/OBJECT-TIMESTAMP)",
+    )
+    scan.add_argument("--seed", type=int, default=None, help="seed of the simulated error model")
+    scan.add_argument("--config", type=Path, default=None, help="scan configuration YAML")
+    scan.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        help="calibration file from `scanner calibrate` (stereo model and hand-eye X_FC)",
+    )
+    scan.add_argument(
+        "--resume", type=Path, default=None, metavar="DIR", help="continue an interrupted scan"
+    )
+    scan.add_argument(
+        "--force", action="store_true", help="replace an existing scan directory given with --out"
+    )
+    scan.add_argument(
+        "--meshcat",
+        action="store_true",
+        help="show the robot, planned paths and the growing cloud live in Drake's Meshcat",
+    )
+    scan.add_argument(
+        "--print-config",
+        action="store_true",
+        help="print the effective configuration (defaults, --config, flags) as YAML and exit",
+    )
+
+    calibrate = sub.add_parser(
+        "calibrate",
+        help="calibrate the stereo camera and the hand-eye transform X_FC",
+        description="Move the camera around a calibration board, calibrate the stereo pair and "
+        "the hand-eye transform, and write a calibration file that scan/reconstruct use "
+        "(DIR/results/calibration.yaml). --offline DIR calibrates from recorded images and "
+        "robot poses instead; --eye-to-hand calibrates a static camera against the robot.",
+    )
+    _add_calibrate_arguments(calibrate)
+
+    reconstruct = sub.add_parser(
+        "reconstruct",
+        help="re-run the reconstruction offline on a saved scan directory",
+        description="Rebuild the model from saved captures (never modifies them).",
+    )
+    reconstruct.add_argument("scan_dir", type=Path, help="a scan directory made by `scanner scan`")
+    reconstruct.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="processing YAML (stereo:, reconstruction:, ...); default: the scan's own settings",
+    )
+    reconstruct.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        help="use this calibration's stereo model and X_FC instead of the scan's",
+    )
+    reconstruct.add_argument(
+        "--out", type=Path, default=None, help="results folder (default SCAN_DIR/results)"
+    )
+    reconstruct.add_argument("--no-icp", action="store_true", help="poses from the robot only")
+    reconstruct.add_argument(
+        "--no-handeye", action="store_true", help="keep X_FC as given (no loop-based correction)"
+    )
+    reconstruct.add_argument(
+        "--formats",
+        default=None,
+        help="mesh file formats, comma separated from ply,obj,stl (default ply)",
+    )
+
+    preview = sub.add_parser(
+        "preview",
+        help="render the simulated work cell and one stereo pair to PNG files",
+        description="Build the simulated cell with an object, move the arm to one reachable "
+        "viewpoint and render an overview and the stereo pair (with lens distortion and noise).",
+    )
+    preview.add_argument(
+        "--object", default="vase", help=f"built-in object ({BUILTIN_HELP}) or a mesh file"
+    )
+    preview.add_argument("--out", type=Path, default=Path("out/preview"), help="output folder")
+    preview.add_argument("--seed", type=int, default=0, help="seed of the simulated error model")
+    return parser
+
+
+def _add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> None:
+    # Names are validated by the calibration code (one-line errors listing the valid ones), so
+    # no argparse `choices` here.
+    calibrate.add_argument("--out", type=Path, default=None, help="calibration directory")
+    calibrate.add_argument("--config", type=Path, default=None, help="calibration YAML file")
+    calibrate.add_argument("--force", action="store_true", help="replace an existing --out")
+    calibrate.add_argument("--seed", type=int, default=None, help="seed of the simulated errors")
+    calibrate.add_argument(
+        "--stations", type=int, default=None, help="number of board views to take (default 20)"
+    )
+    board = calibrate.add_argument_group("board (simulation default: chessboard 10x7, 0.02 m)")
+    board.add_argument("--board", default=None, help="charuco, chessboard or circles_asymmetric")
+    board.add_argument(
+        "--board-size",
+        default=None,
+        metavar="COLSxROWS",
+        help="squares (chessboard, charuco) or circles (circle grid) across x down, e.g. 7x11",
+    )
+    board.add_argument(
+        "--board-spacing",
+        type=_positive_float,
+        default=None,
+        metavar="M",
+        help="square size, or circle distance along a row, in metres",
+    )
+    board.add_argument(
+        "--marker-size",
+        type=_positive_float,
+        default=None,
+        metavar="M",
+        help="ChArUco marker size in metres",
+    )
+    board.add_argument("--dictionary", default=None, help="ArUco dictionary, e.g. DICT_5X5_100")
+    board.add_argument(
+        "--inverted", action="store_true", help="white pattern on black (e.g. white dots)"
+    )
+    offline = calibrate.add_argument_group("offline calibration from recorded data")
+    offline.add_argument(
+        "--offline",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="a calibration directory made by this tool, or images with robot pose files "
+        "(same name, .txt) or left/ and right/ image folders",
+    )
+    offline.add_argument(
+        "--pose-convention",
+        default=None,
+        help="robot pose preset: open3dv, yaskawa, fanuc, kuka, staubli, abb, ur, matrix_m, "
+        "matrix_mm",
+    )
+    offline.add_argument(
+        "--pose-layout",
+        default=None,
+        help="matrix, xyz_euler, euler_xyz, xyz_quat, xyz_wxyz or xyz_rotvec",
+    )
+    offline.add_argument(
+        "--euler", default=None, help="Euler sequence: xyz (extrinsic) ... XYZ (intrinsic)"
+    )
+    offline.add_argument("--length-unit", default=None, help="m or mm")
+    offline.add_argument("--angle-unit", default=None, help="deg or rad")
+    offline.add_argument(
+        "--inverse-poses", action="store_true", help="the files hold the base in the flange"
+    )
+    offline.add_argument(
+        "--pose-file", type=Path, default=None, help="one pose per line, in image name order"
+    )
+    offline.add_argument(
+        "--intrinsics",
+        type=Path,
+        default=None,
+        help="known intrinsics: calibration/stereo YAML, or text (K row by row, k1 k2 p1 p2 k3)",
+    )
+    e2h = calibrate.add_argument_group("eye-to-hand (static camera, marker on the flange)")
+    e2h.add_argument("--eye-to-hand", action="store_true", help="calibrate a static camera")
+    e2h.add_argument("--held-out", type=int, default=None, help="random test points (default 100)")
+    e2h.add_argument(
+        "--grid-spacing", type=_positive_float, default=None, metavar="M", help="grid spacing (m)"
+    )
+
+
+def _scan(args: argparse.Namespace) -> int:
+    import datetime
+
+    from scanner.config import load_scan_config, with_overrides
+    from scanner.progress import ProgressBar
+    from scanner.scan import run_scan
+
+    flags = dict(
+        object_spec=args.object,
+        size_m=args.size,
+        views=args.views,
+        radius_m=args.radius,
+        seed=args.seed,
+        calibration_file=str(args.calibration) if args.calibration else None,
+    )
+    if args.resume is not None:
+        if args.out is not None:
+            raise ScannerError("--resume DIR continues DIR; do not give --out as well")
+        given = args.config is not None or any(v is not None for v in flags.values())
+        config = with_overrides(load_scan_config(args.config), **flags) if given else None
+        out = None
+    else:
+        config = with_overrides(load_scan_config(args.config), **flags)
+        if args.print_config:
+            import yaml
+
+            from scanner.config import scan_config_to_dict
+
+            print(yaml.safe_dump(scan_config_to_dict(config), sort_keys=False), end="")
+            return 0
+        stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+        name = Path(config.object).stem
+        out = args.out or Path("scans") / f"{name}-{stamp}"
+    with ProgressBar("views") as bar:
+        result = run_scan(config, out, args.resume, args.force, bar.update, meshcat=args.meshcat)
+    r = result.report
+    print(
+        f"scan: {r['views_captured']}/{r['views_planned']} views captured, "
+        f"{r['views_skipped']} skipped; robot motion {r['robot_motion_s']:.1f} s, "
+        f"wall {r['wall_s']:.1f} s; status {r['status']}"
+    )
+    print(f"scan directory: {result.scan_dir}")
+    print(f"report: {result.scan_dir / 'results' / 'report.json'}")
+    return 0 if r["status"] != "interrupted" else 130
+
+
+def _reconstruct(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from reconstruction.calibration_file import load_calibration
+    from scanner.captures import CaptureStore
+    from scanner.config import scan_config_from_dict
+    from scanner.reconstruct import load_processing_config, run_reconstruct
+
+    store = CaptureStore.open(args.scan_dir)
+    if args.config is not None:
+        processing = load_processing_config(args.config)
+    else:
+        manifest = store.read_manifest()
+        processing = scan_config_from_dict(
+            manifest.get("config", {}), "scan.yaml:config"
+        ).processing
+    rec = processing.reconstruction
+    if args.no_icp:
+        rec = replace(rec, icp=replace(rec.icp, enabled=False))
+    if args.no_handeye:
+        rec = replace(rec, handeye=replace(rec.handeye, enabled=False))
+    formats = processing.mesh_formats
+    if args.formats:
+        formats = tuple("." + f.strip().lstrip(".").lower() for f in args.formats.split(","))
+    processing = replace(processing, reconstruction=rec, mesh_formats=formats)
+    stereo = X_FC = None
+    if args.calibration is not None:
+        calibration = load_calibration(args.calibration)
+        stereo, X_FC = calibration.stereo, calibration.X_FC
+    run = run_reconstruct(args.scan_dir, processing, args.out, X_FC, stereo)
+    r = run.report
+    print(
+        f"reconstruct: {r['captures_used']} captures used, {len(r['captures_skipped'])} "
+        f"skipped, {r['reconstruct_s']:.1f} s"
+    )
+    if "chamfer_mm" in r:
+        print(
+            f"{r['primary_surface']}: chamfer {r['chamfer_mm']:.3f} mm, F-score(1 mm) "
+            f"{r['fscore_1mm']:.3f}, completeness(2 mm) {r['completeness_2mm']:.3f}; "
+            f"hand-eye error {r['handeye_error_mm']:.3f} mm / {r['handeye_error_deg']:.4f} deg"
+        )
+    print(f"results: {run.results_dir}")
+    return 0
+
+
+def _run(args: argparse.Namespace) -> int:
+    if args.command == "scan":
+        return _scan(args)
+    if args.command == "calibrate":
+        from scanner.calibrate_cli import run_calibrate_command
+
+        return run_calibrate_command(args)
+    if args.command == "preview":
+        from scanner.preview import run_preview
+
+        result = run_preview(args.object, args.out, args.seed)
+        print(f"overview: {result.overview_png}")
+        print(f"stereo pair: {result.left_png} {result.right_png}")
+        return 0
+    if args.command == "reconstruct":
+        return _reconstruct(args)
+    raise AssertionError(f"unhandled command {args.command}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    import logging
+
+    import pydrake.common  # noqa: F401  (sets up the "drake" logger, which we then quieten)
+
+    # Drake reports its own context allocation at INFO; users only need its warnings.
+    logging.getLogger("drake").setLevel(logging.WARNING)
+    try:
+        return _run(args)
+    except ScannerError as e:
+        print(f"scanner: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("scanner: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

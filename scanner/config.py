@@ -1,0 +1,113 @@
+"""The scan configuration: one typed, validated record loaded from YAML (`--config FILE`).
+
+Every section has defaults, so an empty file (or none) is a valid configuration; unknown keys
+are rejected with the list of valid ones. Units are in the field names.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from planners.planner import PlannerConfig
+from reconstruction.camera_model import StereoCamera, default_stereo_camera
+from reconstruction.errors import ScannerError
+from robots.truth import ErrorModel
+from robots.workcell import WorkcellConfig
+from scanner.reconstruct import ProcessingConfig
+from scanner.typed_yaml import from_dict, load_yaml_file, to_dict
+from scanner.viewpoints import ViewpointConfig
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """The nominal stereo camera (what the software believes; the simulator's truth equals it
+    unless a calibration file says otherwise)."""
+
+    width_px: int = 1280
+    height_px: int = 960
+    focal_px: float = 1320.0
+    baseline_m: float = 0.12
+    distortion: tuple[float, float, float, float, float] = (-0.42, 0.19, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if self.width_px < 16 or self.height_px < 16:
+            raise ScannerError("camera: width_px and height_px must be at least 16")
+        if not (self.focal_px > 0 and self.baseline_m > 0):
+            raise ScannerError("camera: focal_px and baseline_m must be positive")
+
+    def stereo_camera(self) -> StereoCamera:
+        return default_stereo_camera(
+            self.width_px, self.height_px, self.focal_px, self.baseline_m, self.distortion
+        )
+
+
+@dataclass(frozen=True)
+class MachineConfig:
+    """Decision-maker retries and settling."""
+
+    capture_retries: int = 2
+    settle_tolerance_rad: float = 1e-3
+    settle_timeout_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.capture_retries < 0:
+            raise ScannerError("machine.capture_retries: must be >= 0")
+
+
+@dataclass(frozen=True)
+class ScanConfig:
+    object: str = "vase"
+    cell: WorkcellConfig = field(default_factory=WorkcellConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    views: ViewpointConfig = field(default_factory=ViewpointConfig)
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    error_model: ErrorModel = field(default_factory=ErrorModel)
+    machine: MachineConfig = field(default_factory=MachineConfig)
+    # A `scanner calibrate` result (stereo model + X_FC) the software uses instead of the
+    # nominal ones; in simulation the true camera and mount stay those of the error model.
+    calibration_file: str | None = None
+    processing: ProcessingConfig = field(default_factory=ProcessingConfig)
+    # Reconstruct at the end of the scan (off: capture only; `scanner reconstruct` later).
+    reconstruct: bool = True
+
+    @property
+    def scan_center_m(self) -> tuple[float, float, float]:
+        return self.views.center_m or self.cell.object_center_m
+
+
+def load_scan_config(path: Path | None) -> ScanConfig:
+    return ScanConfig() if path is None else load_yaml_file(ScanConfig, path)
+
+
+def scan_config_from_dict(data: dict, where: str) -> ScanConfig:
+    return from_dict(ScanConfig, data, where)
+
+
+def scan_config_to_dict(config: ScanConfig) -> dict:
+    return to_dict(config)
+
+
+def with_overrides(
+    config: ScanConfig,
+    object_spec: str | None = None,
+    size_m: float | None = None,
+    views: int | None = None,
+    radius_m: float | None = None,
+    seed: int | None = None,
+    calibration_file: str | None = None,
+) -> ScanConfig:
+    """Command-line flags win over the file; each override is validated like the file."""
+    if object_spec is not None:
+        config = replace(config, object=object_spec)
+    if size_m is not None:
+        config = replace(config, cell=replace(config.cell, object_size_m=size_m))
+    if views is not None:
+        config = replace(config, views=replace(config.views, count=views))
+    if radius_m is not None:
+        config = replace(config, views=replace(config.views, radius_m=radius_m))
+    if seed is not None:
+        config = replace(config, error_model=replace(config.error_model, seed=seed))
+    if calibration_file is not None:
+        config = replace(config, calibration_file=calibration_file)
+    return config

@@ -1,0 +1,147 @@
+"""Human-readable results: plots (PNG, rendered headless) and results/summary.md.
+
+Millimetres and degrees appear only here, at the printing edge; report.json stays in the keys'
+own units (the `_mm`/`_deg` metric names the tools read, SI elsewhere).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # headless: no display on CI or robot PCs
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from reconstruction.metrics import TriangleSurface, distances_to_mesh  # noqa: E402
+from reconstruction.pipeline import ReconstructionResult  # noqa: E402
+from reconstruction.poses import pose_difference  # noqa: E402
+
+
+def _residual_plot(result: ReconstructionResult, path: Path) -> None:
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6))
+    edges = [e for e in result.edges if e.inlier_rmse_m is not None]
+    labels = [f"{e.source}-{e.target}" for e in edges]
+    colours = ["tab:green" if e.status == "kept" else "tab:red" for e in edges]
+    axes[0].bar(range(len(edges)), [1e3 * e.inlier_rmse_m for e in edges], color=colours)
+    axes[0].set_ylabel("ICP inlier RMSE (mm)")
+    axes[0].set_title("Pairwise ICP edges (green kept, red pruned)")
+    axes[0].set_xticks(range(len(edges)), labels, rotation=90, fontsize=6)
+    moves = [pose_difference(v.X_WC_kinematic, v.X_WC) for v in result.views]
+    idx = [v.index for v in result.views]
+    axes[1].bar(np.arange(len(idx)) - 0.2, [1e3 * t for t, _ in moves], 0.4, label="mm")
+    axes[1].bar(
+        np.arange(len(idx)) + 0.2, [math.degrees(r) * 10 for _, r in moves], 0.4, label="deg x 10"
+    )
+    axes[1].set_xticks(range(len(idx)), [str(i) for i in idx], fontsize=7)
+    axes[1].set_xlabel("view")
+    axes[1].set_title("Final camera pose vs the robot's kinematic pose (nominal X_FC)")
+    axes[1].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _error_map(vertices: np.ndarray, error_mm: np.ndarray, path: Path, title: str) -> None:
+    """Two orthographic views of the mesh vertices coloured by their distance to the truth."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 5))
+    order = np.argsort(vertices[:, 1])
+    for ax, (a, b, name) in zip(axes, ((0, 2, "x-z (side)"), (0, 1, "x-y (from below)"))):
+        keep = order if b == 2 else np.argsort(-vertices[:, 2])
+        sc = ax.scatter(
+            vertices[keep, a],
+            vertices[keep, b],
+            c=error_mm[keep],
+            s=0.3,
+            cmap="turbo",
+            vmin=0,
+            vmax=max(2.0, float(np.percentile(error_mm, 95))),
+        )
+        ax.set_aspect("equal")
+        ax.set_title(name)
+        ax.set_xlabel("m")
+    fig.colorbar(sc, ax=axes, label="distance to the true surface (mm)")
+    fig.suptitle(title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_plots(
+    result: ReconstructionResult,
+    report: dict,
+    out: Path,
+    truth: TriangleSurface | None = None,
+    primary: str = "poisson",
+) -> dict:
+    paths = {"residuals": "residuals.png"}
+    _residual_plot(result, out / paths["residuals"])
+    mesh = result.meshes.get(primary)
+    if truth is not None and mesh is not None and len(mesh.vertices):
+        error_mm = 1e3 * distances_to_mesh(mesh.vertices, truth)
+        paths["error_map"] = "error_map.png"
+        _error_map(
+            mesh.vertices,
+            error_mm,
+            out / paths["error_map"],
+            f"{primary} mesh: median {np.median(error_mm):.2f} mm, "
+            f"p90 {np.percentile(error_mm, 90):.2f} mm",
+        )
+    return paths
+
+
+def _fmt(value, digits: int = 3) -> str:
+    return f"{value:.{digits}f}" if isinstance(value, float) else str(value)
+
+
+def write_summary(report: dict, out: Path) -> Path:
+    lines = ["# Scan result", ""]
+    if "views_planned" in report:
+        lines += [
+            f"- views captured: {report.get('views_captured')} of {report['views_planned']}"
+            f" ({report.get('views_skipped', 0)} skipped)",
+            f"- robot motion: {_fmt(report.get('robot_motion_s', 0.0), 1)} s,"
+            f" wall time: {_fmt(report.get('wall_s', 0.0), 1)} s",
+        ]
+    keys = [
+        "chamfer_mm",
+        "fscore_1mm",
+        "fscore_2mm",
+        "completeness_2mm",
+        "accuracy_p90_mm",
+        "chamfer_observed_mm",
+        "completeness_observed_2mm",
+        "observed_fraction",
+    ]
+    if "chamfer_mm" in report:
+        lines += [
+            "",
+            f"## Metrics of the {report.get('primary_surface')} mesh against the truth",
+            "",
+            "| metric | value |",
+            "|---|---|",
+        ]
+        lines += [f"| {k} | {_fmt(report[k])} |" for k in keys if k in report]
+    if "handeye_error_mm" in report:
+        lines += [
+            "",
+            "## Hand-eye transform X_FC (error against the simulator's truth)",
+            "",
+            f"- nominal: {_fmt(report['handeye_error_before_mm'])} mm, "
+            f"{_fmt(report['handeye_error_before_deg'])} deg",
+            f"- estimated: {_fmt(report['handeye_error_mm'])} mm, "
+            f"{_fmt(report['handeye_error_deg'])} deg",
+        ]
+    if "X_FC_change_mm" in report:
+        lines += [
+            f"- correction applied: {_fmt(report['X_FC_change_mm'])} mm, "
+            f"{_fmt(report['X_FC_change_deg'])} deg"
+        ]
+    if "outputs" in report:
+        lines += ["", "## Files", ""] + [f"- `{p}`" for p in report["outputs"].values()]
+    for name, path in report.get("plots", {}).items():
+        lines += ["", f"![{name}]({path})"]
+    path = out / "summary.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path

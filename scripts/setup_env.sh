@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Idempotent set-up: system library for open3d, then .venv/ in the repository root with the package.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+    if [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null; then
+        echo "setup: installing libusb-1.0-0 (open3d needs it) with apt-get"
+        apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1 \
+            || { apt-get update -q >/dev/null && apt-get install -y -q libusb-1.0-0 >/dev/null; }
+    else
+        echo "setup: open3d needs the system library libusb-1.0-0; install it, e.g." >&2
+        echo "       sudo apt-get install libusb-1.0-0" >&2
+        exit 1
+    fi
+fi
+
+PYTHON="${PYTHON:-python3.11}"
+command -v "$PYTHON" >/dev/null || PYTHON=python3
+if ! "$PYTHON" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+    echo "setup: Python 3.11 is required (drake 1.51 wheels); found $("$PYTHON" --version 2>&1)" >&2
+    exit 1
+fi
+
+if [ ! -x .venv/bin/python ]; then
+    echo "setup: creating .venv/"
+    "$PYTHON" -m venv .venv
+fi
+stamp=.venv/.installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+    echo "setup: installing scanner and its dependencies into .venv/"
+    # Build back-end chatter goes to a log; it is shown only when the install fails.
+    if ! { .venv/bin/python -m pip install -q --upgrade pip \
+           && .venv/bin/python -m pip install -q -e ".[dev]"; } > .venv/install.log 2>&1; then
+        cat .venv/install.log >&2
+        echo "setup: installing into .venv/ failed (log above, also in .venv/install.log)" >&2
+        exit 1
+    fi
+    touch "$stamp"
+fi

@@ -1,0 +1,200 @@
+"""`scanner calibrate --offline`: the real Open3DV circle-grid set, bad input, CLI exit codes."""
+
+import math
+import shutil
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from reconstruction.boards import BoardSpec
+from reconstruction.calibration_file import load_calibration
+from reconstruction.errors import ScannerError
+from reconstruction.pose_files import pose_format
+from scanner.calibrate import OfflineOptions, calibrate_directory
+from tests.conftest import shared_data
+
+REAL = "real/handeye_open3dv_eye_in_hand_circlegrid"
+# The data set's README: reference = OpenCV TSAI/PARK; a test should find the rotation within
+# ~0.5 deg, the translation within ~5-10 mm (weakly observable: all poses at one height, tilts
+# <= 13 deg) and a board-in-base scatter under ~1-2 mm.
+REFERENCE_T_M = np.array([219.96, 68.97, -177.71]) * 1e-3  # TSAI
+REFERENCE_ROTVEC = np.array([0.1004, -0.0459, 1.5495])
+ROTATION_TOL_RAD = math.radians(0.5)
+TRANSLATION_TOL_M = 5e-3
+SCATTER_TOL_M = 1e-3
+BOARD_ARGS = [
+    "--board",
+    "circles_asymmetric",
+    "--board-size",
+    "7x11",
+    "--board-spacing",
+    "0.02",
+    "--inverted",
+]
+
+
+def _options(root):
+    return OfflineOptions(
+        BoardSpec("circles_asymmetric", 7, 11, 0.02, inverted=True),
+        pose_format("open3dv"),
+        intrinsics=root / "param.txt",
+    )
+
+
+def _run(*args):
+    return subprocess.run(
+        [sys.executable, "-m", "scanner.cli", "calibrate", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_real_circle_grid_matches_the_reference(tmp_path):
+    root = shared_data(REAL)
+    r = _run(
+        "--offline",
+        str(root),
+        *BOARD_ARGS,
+        "--pose-convention",
+        "open3dv",
+        "--intrinsics",
+        str(root / "param.txt"),
+        "--out",
+        str(tmp_path),
+    )
+    assert r.returncode == 0, r.stderr
+    calibration = load_calibration(tmp_path / "results" / "calibration.yaml")
+    assert calibration.stereo is None and calibration.camera.width == 1920
+    X = calibration.X_FC
+    R_ref = Rotation.from_rotvec(REFERENCE_ROTVEC).as_matrix()
+    angle = Rotation.from_matrix(X[:3, :3].T @ R_ref).magnitude()
+    assert angle < ROTATION_TOL_RAD
+    assert np.linalg.norm(X[:3, 3] - REFERENCE_T_M) < TRANSLATION_TOL_M
+    assert max(calibration.quality["board_scatter_m"]) < SCATTER_TOL_M
+    assert calibration.quality["poses_used"] == 8
+    assert "calibration: 8/8 poses used" in r.stdout
+
+
+def test_wrong_euler_convention_shows_in_the_scatter(tmp_path):
+    """The README: a wrong convention gives a scatter of tens of mm; the report makes it plain."""
+    root = shared_data(REAL)
+    options = _options(root)
+    wrong = OfflineOptions(
+        options.board, pose_format("open3dv", euler="XYZ"), intrinsics=options.intrinsics
+    )
+    run = calibrate_directory(root, wrong, out_dir=tmp_path)
+    assert max(run.report["board_scatter_m"]) > 5e-3
+
+
+def _copy(root, tmp_path, names):
+    folder = tmp_path / "data"
+    folder.mkdir()
+    for name in names:
+        for suffix in (".bmp", ".txt"):
+            shutil.copy(root / f"{name}{suffix}", folder / f"{name}{suffix}")
+    shutil.copy(root / "param.txt", folder / "param.txt")
+    return folder
+
+
+def test_board_not_found_is_skipped_and_reported(tmp_path):
+    root = shared_data(REAL)
+    folder = _copy(root, tmp_path, [f"pos{i}" for i in range(8)])
+    image = cv2.imread(str(folder / "pos5.bmp"), cv2.IMREAD_GRAYSCALE)
+    cv2.imwrite(str(folder / "pos5.bmp"), np.zeros_like(image))  # lens cap on
+    options = _options(folder)
+    run = calibrate_directory(folder, options, out_dir=tmp_path / "out")
+    assert run.report["poses_board_not_found"] == ["pos5"]
+    assert run.report["poses_used"] == 7
+    text = (tmp_path / "out" / "results" / "report.txt").read_text()
+    assert "board not found in: pos5" in text
+
+
+def test_too_few_poses_is_a_clear_error(tmp_path):
+    root = shared_data(REAL)
+    folder = _copy(root, tmp_path, ["pos0", "pos1", "pos2"])
+    with pytest.raises(ScannerError, match=r"only 3 of 3 poses .* record 2 more pose"):
+        calibrate_directory(folder, _options(folder), out_dir=tmp_path / "out")
+    r = _run(
+        "--offline",
+        str(folder),
+        *BOARD_ARGS,
+        "--pose-convention",
+        "open3dv",
+        "--intrinsics",
+        str(folder / "param.txt"),
+        "--out",
+        str(tmp_path / "o"),
+    )
+    assert r.returncode == 2
+    assert "record 2 more pose" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def _fake_folder(tmp_path, pose_text):
+    folder = tmp_path / "fake"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "view0.png"), np.full((48, 64), 255, np.uint8))
+    (folder / "view0.txt").write_text(pose_text)
+    return folder
+
+
+@pytest.mark.parametrize(
+    "pose_text, flags, needle",
+    [
+        ("1 2 3 4 5\n", ["--pose-convention", "kuka"], "found 5 numbers, the pose layout"),
+        ("1 2 3 4 5 6\n", ["--pose-convention", "robotco"], "unknown pose convention 'robotco'"),
+        ("1 2 3 4 5 6\n", ["--pose-layout", "xyz_euler", "--euler", "abc"], "unknown Euler"),
+        ("1 2 3 4 5 6\n", ["--pose-layout", "xyz_euler", "--length-unit", "inch"], "length unit"),
+        ("1 2 3 4 5 6\n", ["--pose-layout", "xyz_euler", "--board", "dots"], "board kind 'dots'"),
+    ],
+)
+def test_bad_pose_input_is_one_line_exit_2(tmp_path, pose_text, flags, needle):
+    folder = _fake_folder(tmp_path, pose_text)
+    board = [] if "--board" in flags else BOARD_ARGS
+    r = _run("--offline", str(folder), *board, *flags, "--out", str(tmp_path / "out"))
+    assert r.returncode == 2, r.stderr
+    assert needle in r.stderr
+    assert "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_pose_list_with_wrong_column_count(tmp_path):
+    folder = _fake_folder(tmp_path, "")
+    (folder / "view0.txt").unlink()
+    poses = tmp_path / "poses.csv"
+    poses.write_text("0.1, 0.2, 0.3, 0, 0\n")
+    r = _run(
+        "--offline",
+        str(folder),
+        *BOARD_ARGS,
+        "--pose-layout",
+        "xyz_rotvec",
+        "--pose-file",
+        str(poses),
+        "--out",
+        str(tmp_path / "out"),
+    )
+    assert r.returncode == 2
+    assert "poses.csv line 1: 5 columns, the pose layout 'xyz_rotvec' needs 6" in r.stderr
+
+
+def test_planned_mover_executes_or_reports_the_failure():
+    from types import SimpleNamespace
+
+    from planners.planner import PlanFailure
+    from scanner.calibrate_sim import PlannedMover
+
+    executed = []
+    robot = SimpleNamespace(
+        joint_positions=lambda: np.zeros(6), execute=lambda trajectory: executed.append(trajectory)
+    )
+    ok = SimpleNamespace(to_joint_trajectory=lambda: "trajectory")
+    mover = PlannedMover(lambda q0, q1: ok, robot)
+    assert mover(np.ones(6)) and executed == ["trajectory"]
+    failure = PlanFailure("no_path", "roadmap disconnected")
+    mover = PlannedMover(lambda q0, q1: failure, robot)
+    assert not mover(np.ones(6)) and mover.last_failure == "no_path: roadmap disconnected"

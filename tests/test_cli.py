@@ -1,0 +1,77 @@
+"""The command line: help texts and one-line user errors with exit code 2."""
+
+import subprocess
+import sys
+
+import pytest
+
+from scanner.cli import main
+
+
+def _run(*args):
+    return subprocess.run(
+        [sys.executable, "-m", "scanner.cli", *args], capture_output=True, text=True, timeout=300
+    )
+
+
+@pytest.mark.parametrize("args", [[], ["scan"], ["calibrate"], ["reconstruct"], ["preview"]])
+def test_help(args, capsys):
+    with pytest.raises(SystemExit) as e:
+        main([*args, "--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert "usage: scanner" in out
+    if not args:
+        for sub in ("scan", "calibrate", "reconstruct"):
+            assert sub in out
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["preview", "--object", "teacup"], "unknown object 'teacup'"),
+        (["preview", "--object", "/nonexistent/mesh.stl"], "no such mesh file"),
+    ],
+)
+def test_user_errors_are_one_line_exit_2(args, needle, tmp_path):
+    r = _run(*args, "--out", str(tmp_path / "o"))
+    assert r.returncode == 2
+    assert needle in r.stderr
+    assert "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_preview_writes_pngs(tmp_path):
+    import cv2
+
+    r = _run("preview", "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    left = cv2.imread(str(tmp_path / "left.png"))
+    assert left.shape == (960, 1280, 3)
+    assert cv2.imread(str(tmp_path / "overview.png")) is not None
+
+
+@pytest.mark.parametrize("command", [["reconstruct"], ["scan", "--resume"]])
+def test_a_folder_that_is_not_a_scan_is_refused(command, tmp_path):
+    (tmp_path / "holiday.jpg").write_bytes(b"not a scan")
+    r = _run(*command, str(tmp_path))
+    assert r.returncode == 2
+    assert "not a scan directory" in r.stderr and "Traceback" not in r.stderr
+    assert (tmp_path / "holiday.jpg").read_bytes() == b"not a scan"
+
+
+def test_printed_config_loads_back_as_the_same_configuration(tmp_path):
+    from scanner.config import ScanConfig, load_scan_config, scan_config_to_dict, with_overrides
+
+    r = _run("scan", "--print-config", "--views", "7", "--object", "bracket")
+    assert r.returncode == 0, r.stderr
+    path = tmp_path / "scan.yaml"
+    path.write_text(r.stdout)
+    config = load_scan_config(path)
+    assert config.views.count == 7 and config.object == "bracket"
+    expected = with_overrides(ScanConfig(), object_spec="bracket", views=7)
+    assert scan_config_to_dict(config) == scan_config_to_dict(expected)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(r.stdout.replace("radius_m: 0.5", "radius_mm: 500"))
+    r = _run("scan", "--config", str(bad), "--print-config")
+    assert r.returncode == 2 and "unknown key(s) radius_mm" in r.stderr

@@ -1,0 +1,79 @@
+"""Built-in objects, mesh loading and bad input."""
+
+import numpy as np
+import pytest
+
+from reconstruction.errors import ScannerError
+from robots.objects import BUILTIN_OBJECTS, resolve_object, write_textured_obj
+from tests.conftest import shared_data
+
+
+@pytest.mark.parametrize("name", sorted(BUILTIN_OBJECTS))
+def test_builtin_objects_are_closed_and_sized(name):
+    import open3d as o3d
+
+    mesh = resolve_object(name, 0.2)
+    assert mesh.extent_m.max() == pytest.approx(0.2, abs=1e-9)
+    np.testing.assert_allclose((mesh.vertices.max(0) + mesh.vertices.min(0)) / 2, 0, atol=1e-9)
+    o3 = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(np.array(mesh.vertices)),
+        o3d.utility.Vector3iVector(np.array(mesh.triangles)),
+    )
+    assert o3.is_watertight()
+    assert o3.get_volume() > 0
+
+
+def test_bracket_has_holes():
+    mesh = resolve_object("bracket", 0.2)
+    t = mesh.triangles
+    edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+    v, e, f = len(mesh.vertices), len(np.unique(edges, axis=0)), len(t)
+    # Euler characteristic V - E + F = 2 - 2 genus; four through holes give genus 4.
+    assert 2 - (v - e + f) == 2 * 4
+
+
+def test_textured_obj_has_normals_and_uvs(tmp_path):
+    mesh = resolve_object("pebble", 0.1)
+    path = write_textured_obj(mesh, tmp_path, texture_seed=1)
+    text = path.read_text()
+    assert (
+        "\nvn " in text
+        and "\nvt " in text
+        and "map_Kd texture.png" in (tmp_path / "object.mtl").read_text()
+    )
+    face = next(line for line in text.splitlines() if line.startswith("f "))
+    assert len(face.split()[1].split("/")) == 3
+
+
+def test_shared_mesh_rescaled(tmp_path):
+    path = shared_data("meshes/stanford-bunny.obj")
+    mesh = resolve_object(str(path), 0.15)
+    assert mesh.extent_m.max() == pytest.approx(0.15, abs=1e-9)
+
+
+@pytest.mark.parametrize(
+    "spec, size, message",
+    [
+        ("teacup", 0.2, "unknown object 'teacup'"),
+        ("vase", 0.0, "positive"),
+        ("vase", -1.0, "positive"),
+        ("missing.obj", 0.2, "no such mesh file"),
+    ],
+)
+def test_bad_object_input(spec, size, message):
+    with pytest.raises(ScannerError, match=message):
+        resolve_object(spec, size)
+
+
+def test_empty_and_nan_meshes(tmp_path):
+    empty = tmp_path / "empty.obj"
+    empty.write_text("# nothing\n")
+    with pytest.raises(ScannerError, match="empty"):
+        resolve_object(str(empty), 0.2)
+    nan = tmp_path / "nan.obj"
+    nan.write_text(
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv nan 0 1\nv 1 1 1\n"
+        "f 1 2 3\nf 1 2 4\nf 2 3 4\nf 1 3 4\nf 2 3 5\n"
+    )
+    with pytest.raises(ScannerError, match="NaN"):
+        resolve_object(str(nan), 0.2)

@@ -1,0 +1,151 @@
+"""End-to-end simulated scans: tiny (few views, low resolution), killed and resumed, bad input."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from reconstruction.errors import ScannerError
+from scanner.captures import CaptureStore
+from scanner.config import ScanConfig, load_scan_config
+from scanner.scan import run_scan
+
+TINY = {
+    "camera": {"width_px": 320, "height_px": 240, "focal_px": 330.0},
+    "views": {"count": 5, "candidates": 200, "roll_candidates": 4},
+    "planner": {"roadmap_milestones": 120, "prm_build_time_s": 20.0},
+}
+
+
+@pytest.fixture(scope="module")
+def tiny_config_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cfg") / "tiny.yaml"
+    path.write_text(yaml.safe_dump(TINY))
+    return path
+
+
+@pytest.fixture(scope="module")
+def tiny_scan(tiny_config_file, tmp_path_factory):
+    out = tmp_path_factory.mktemp("scans") / "tiny"
+    return run_scan(load_scan_config(tiny_config_file), out)
+
+
+def test_tiny_scan_captures_every_view(tiny_scan):
+    r = tiny_scan.report
+    assert r["views_planned"] == 5 and r["views_captured"] == 5 and r["views_skipped"] == 0
+    assert r["status"] == "complete"  # captured, then reconstructed
+    assert r["robot_motion_s"] > 0
+    for key in ("setup", "viewpoints", "ordering", "capture"):
+        assert r["stage_s"][key] >= 0
+    store = CaptureStore.open(tiny_scan.scan_dir)
+    assert store.captured_indices() == [0, 1, 2, 3, 4]
+    manifest = store.read_manifest()
+    assert manifest["status"] == "complete" and manifest["pose_count"] == 5
+    # The end-to-end run reconstructs too (at 320x240 a coarse model; the accuracy of the
+    # reconstruction is tested at full resolution in test_reconstruct_scan.py).
+    assert 0 < r["accuracy_p90_mm"] < 10 and r["completeness_observed_2mm"] > 0.3
+    assert (tiny_scan.scan_dir / "results" / "mesh_poisson.ply").is_file()
+    assert (tiny_scan.scan_dir / "truth.yaml").is_file()
+    assert (tiny_scan.scan_dir / "truth_mesh.ply").is_file()
+
+
+def test_captures_record_the_pose_they_were_taken_at(tiny_scan):
+    from robots.kinematics import Kinematics
+
+    store = CaptureStore.open(tiny_scan.scan_dir)
+    kin = Kinematics()
+    centre = np.array(ScanConfig().scan_center_m)
+    for i in store.captured_indices():
+        c = store.read_capture(i)
+        np.testing.assert_allclose(c.X_WF, kin.X_WF(c.q_rad), atol=1e-12)
+        assert c.left.shape == (240, 320, 3)
+        # The flange looks at the object: the centre is in front of the camera.
+        X_WF = c.X_WF
+        assert (centre - X_WF[:3, 3]) @ X_WF[:3, 2] > 0.3
+        assert c.left.std() > 10  # not a blank frame
+
+
+def _captures(scan_dir: Path) -> list[int]:
+    d = scan_dir / "captures"
+    return sorted(int(p.name) for p in d.iterdir() if p.name.isdigit()) if d.exists() else []
+
+
+def _scanner(*args, env=None):
+    return [sys.executable, "-m", "scanner.cli", "scan", *args]
+
+
+def test_killed_scan_resumes_without_duplicates(tiny_config_file, tmp_path, tiny_scan):
+    out = tmp_path / "killed"
+    cfg = yaml.safe_load(tiny_config_file.read_text())
+    cfg["views"]["count"] = 6
+    cfg["reconstruct"] = False  # this test is about the captures
+    config_file = tmp_path / "six.yaml"
+    config_file.write_text(yaml.safe_dump(cfg))
+    proc = subprocess.Popen(
+        _scanner("--config", str(config_file), "--out", str(out)),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=os.environ.copy(),
+    )
+    deadline = time.monotonic() + 240
+    while len(_captures(out)) < 2 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    k = len(_captures(out))
+    assert 2 <= k < 6, f"the scan should have been killed mid-way, it had {k} captures"
+    before = {i: (out / "captures" / f"{i:04d}" / "left.png").read_bytes() for i in _captures(out)}
+    r = subprocess.run(_scanner("--resume", str(out)), capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    store = CaptureStore.open(out)
+    assert store.captured_indices() == list(range(6))
+    assert not list((out / "captures").glob(".tmp-*"))
+    for i in range(6):
+        store.read_capture(i)  # every capture complete and readable
+    for i, data in before.items():  # nothing captured before the kill was rewritten
+        assert (out / "captures" / f"{i:04d}" / "left.png").read_bytes() == data
+
+
+def test_resume_refuses_a_different_object(tiny_scan):
+    with pytest.raises(ScannerError, match="different configuration"):
+        run_scan(ScanConfig(object="bracket"), None, resume=tiny_scan.scan_dir)
+
+
+def test_out_directory_that_is_not_a_scan_is_refused(tmp_path):
+    (tmp_path / "notes.txt").write_text("keep me")
+    r = subprocess.run(
+        _scanner("--out", str(tmp_path), "--views", "2"),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 2 and "not a scan directory" in r.stderr
+    assert "Traceback" not in r.stderr
+    assert (tmp_path / "notes.txt").read_text() == "keep me"
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["--views", "0"], "at least 1 view"),
+        (["--radius", "3.0"], "no viewpoint at radius"),
+        (["--radius", "0.3"], "use a larger radius"),  # stereo could not match the object
+        (["--object", "teacup"], "unknown object"),
+    ],
+)
+def test_bad_scan_input(args, needle, tmp_path, tiny_config_file):
+    r = subprocess.run(
+        _scanner("--config", str(tiny_config_file), "--out", str(tmp_path / "s"), *args),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 2, r.stderr
+    assert needle in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "s").exists()
