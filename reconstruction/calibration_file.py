@@ -40,6 +40,7 @@ from reconstruction.camera_model import (
     stereo_camera_to_dict,
 )
 from reconstruction.errors import ScannerError
+from reconstruction.yaml_files import read_yaml
 
 CALIBRATION_SCHEMA = "scanner.calibration/1"
 
@@ -174,11 +175,4 @@ def calibration_from_dict(d: dict, where: str = "calibration") -> Calibration:
 
 def load_calibration(path: Path) -> Calibration:
     """The calibration in `path` (what `--calibration FILE` reads), validated."""
-    path = Path(path)
-    try:
-        d = yaml.safe_load(path.read_text())
-    except OSError as e:
-        raise ScannerError(f"{path}: cannot read calibration ({e.strerror})") from None
-    except yaml.YAMLError as e:
-        raise ScannerError(f"{path}: calibration is not valid YAML ({e})") from None
-    return calibration_from_dict(d, str(path))
+    return calibration_from_dict(read_yaml(path, "calibration"), str(path))

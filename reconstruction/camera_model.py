@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 
 from reconstruction.errors import ScannerError
+from reconstruction.yaml_files import read_yaml
 
 SCHEMA = "scanner.stereo_camera/1"
 
@@ -175,9 +176,4 @@ def save_stereo_camera(model: StereoCamera, path: Path) -> None:
 
 
 def load_stereo_camera(path: Path) -> StereoCamera:
-    path = Path(path)
-    try:
-        d = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as e:
-        raise CameraModelError(f"{path}: cannot read camera model ({e})") from None
-    return stereo_camera_from_dict(d, str(path))
+    return stereo_camera_from_dict(read_yaml(path, "camera model"), str(path))

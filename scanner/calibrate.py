@@ -27,7 +27,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from planners.planner import PlannerConfig
 from reconstruction.boards import BoardSpec, detect_board
@@ -43,7 +42,6 @@ from reconstruction.calibration import (
 )
 from reconstruction.calibration_file import Calibration, load_calibration, save_calibration
 from reconstruction.camera_model import (
-    CameraModelError,
     PinholeCamera,
     StereoCamera,
     stereo_camera_from_dict,
@@ -54,6 +52,7 @@ from reconstruction.eye_to_hand import (
 )
 from reconstruction.pose_files import PoseFormat, read_pose_file, read_pose_list
 from reconstruction.rigid import pose_error
+from reconstruction.yaml_files import read_yaml
 from robots.blinking_marker import MarkerConfig
 from robots.calibration_board import (
     BoardPlacement,
@@ -267,17 +266,11 @@ def load_intrinsics(path: Path) -> StereoCamera | PinholeCamera:
     if not path.is_file():
         raise ScannerError(f"{path}: no such intrinsics file")
     if path.suffix.lower() in (".yaml", ".yml"):
-        try:
-            d = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as e:
-            raise ScannerError(f"{path}: not valid YAML ({e})") from None
+        d = read_yaml(path, "intrinsics")
         if isinstance(d, dict) and d.get("schema") == "scanner.calibration/1":
             cal = load_calibration(path)
             return cal.stereo or cal.camera
-        try:
-            return stereo_camera_from_dict(d, str(path))
-        except CameraModelError as e:
-            raise ScannerError(str(e)) from None
+        return stereo_camera_from_dict(d, str(path))
     try:
         values = np.array([float(t) for t in re.split(r"[\s,;]+", path.read_text().strip()) if t])
     except ValueError:

@@ -26,6 +26,7 @@ import numpy as np
 import yaml
 
 from reconstruction.errors import ScannerError
+from reconstruction.yaml_files import read_yaml
 
 SCAN_SCHEMA = "scanner.scan/1"
 CAPTURE_SCHEMA = "scanner.capture/1"
@@ -65,12 +66,7 @@ def atomic_write_yaml(path: Path, data: dict) -> None:
 
 
 def _read_yaml(path: Path, what: str) -> dict:
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as e:
-        raise ScannerError(f"{path}: cannot read {what} ({e.strerror})") from None
-    except yaml.YAMLError as e:
-        raise ScannerError(f"{path}: {what} is not valid YAML ({e})") from None
+    data = read_yaml(path, what)
     if not isinstance(data, dict):
         raise ScannerError(f"{path}: {what} is not a mapping")
     return data

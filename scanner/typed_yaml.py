@@ -11,9 +11,8 @@ import types
 import typing
 from pathlib import Path
 
-import yaml
-
 from reconstruction.errors import ScannerError
+from reconstruction.yaml_files import read_yaml
 
 
 def _convert(tp, value, where: str):
@@ -86,11 +85,4 @@ def to_dict(obj) -> dict:
 
 
 def load_yaml_file(cls, path: Path):
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as e:
-        raise ScannerError(f"{path}: cannot read ({e.strerror})") from None
-    except yaml.YAMLError as e:
-        raise ScannerError(f"{path}: not valid YAML ({e})") from None
-    return from_dict(cls, data or {}, str(path))
+    return from_dict(cls, read_yaml(path, "configuration") or {}, str(path))
