@@ -263,7 +263,10 @@ def _scan(args: argparse.Namespace) -> int:
     )
     print(f"scan directory: {result.scan_dir}")
     print(f"report: {result.scan_dir / 'results' / 'report.json'}")
-    return 0 if r["status"] != "interrupted" else 130
+    if r["status"] == "interrupted":
+        print(f"continue with: scanner scan --resume {result.scan_dir}")
+        return 130
+    return 0
 
 
 def _reconstruct(args: argparse.Namespace) -> int:

@@ -112,6 +112,39 @@ def test_killed_scan_resumes_without_duplicates(tiny_config_file, tmp_path, tiny
         assert (out / "captures" / f"{i:04d}" / "left.png").read_bytes() == data
 
 
+def test_sigterm_finishes_the_current_capture_and_leaves_a_resumable_scan(
+    tiny_config_file, tmp_path
+):
+    out = tmp_path / "stopped"
+    cfg = yaml.safe_load(tiny_config_file.read_text())
+    cfg["views"]["count"] = 6
+    cfg["reconstruct"] = False
+    config_file = tmp_path / "six.yaml"
+    config_file.write_text(yaml.safe_dump(cfg))
+    proc = subprocess.Popen(
+        _scanner("--config", str(config_file), "--out", str(out)),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 240
+    while len(_captures(out)) < 1 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    assert f"--resume {out}" in stdout
+    store = CaptureStore.open(out)
+    assert store.read_manifest()["status"] == "interrupted"
+    k = len(store.captured_indices())
+    assert 1 <= k < 6
+    assert not list((out / "captures").glob(".tmp-*"))
+    for i in store.captured_indices():
+        store.read_capture(i)
+    assert "aborted" in (out / "scan.log").read_text().lower()
+
+
 def test_resume_refuses_a_different_object(tiny_scan):
     with pytest.raises(ScannerError, match="different configuration"):
         run_scan(ScanConfig(object="bracket"), None, resume=tiny_scan.scan_dir)
