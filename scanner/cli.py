@@ -113,7 +113,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="use this calibration's stereo model and X_FC instead of the scan's",
     )
     reconstruct.add_argument(
-        "--out", type=Path, default=None, help="results folder (default SCAN_DIR/results)"
+        "--out",
+        type=Path,
+        default=None,
+        help="results folder (default SCAN_DIR/results, or results-N when that holds one already)",
+    )
+    reconstruct.add_argument(
+        "--force", action="store_true", help="replace the reconstruction already in --out"
     )
     reconstruct.add_argument("--no-icp", action="store_true", help="poses from the robot only")
     reconstruct.add_argument(
@@ -275,7 +281,12 @@ def _reconstruct(args: argparse.Namespace) -> int:
     from reconstruction.calibration_file import load_calibration
     from scanner.captures import CaptureStore
     from scanner.config import scan_config_from_dict
-    from scanner.reconstruct import load_processing_config, run_reconstruct
+    from scanner.reconstruct import (
+        free_results_dir,
+        holds_reconstruction,
+        load_processing_config,
+        run_reconstruct,
+    )
 
     store = CaptureStore.open(args.scan_dir)
     if args.config is not None:
@@ -298,7 +309,13 @@ def _reconstruct(args: argparse.Namespace) -> int:
     if args.calibration is not None:
         calibration = load_calibration(args.calibration)
         stereo, X_FC = calibration.stereo, calibration.X_FC
-    run = run_reconstruct(args.scan_dir, processing, args.out, X_FC, stereo)
+    out = args.out or free_results_dir(args.scan_dir)
+    if args.out is not None and holds_reconstruction(args.out) and not args.force:
+        raise ScannerError(
+            f"{args.out}: holds a reconstruction already; choose another --out, or --force to "
+            "replace it"
+        )
+    run = run_reconstruct(args.scan_dir, processing, out, X_FC, stereo)
     r = run.report
     print(
         f"reconstruct: {r['captures_used']} captures used, {len(r['captures_skipped'])} "

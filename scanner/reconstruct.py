@@ -172,6 +172,20 @@ def evaluate(result: ReconstructionResult, truth, surface, centres, samples: int
     return out
 
 
+def holds_reconstruction(results_dir: Path) -> bool:
+    return (Path(results_dir) / "reconstruction.yaml").is_file()
+
+
+def free_results_dir(scan_dir: Path) -> Path:
+    """SCAN_DIR/results while it holds no reconstruction, else the first free SCAN_DIR/results-N:
+    an offline run never replaces an earlier one (e.g. the scan's own, or a --no-icp run)."""
+    candidate, n = Path(scan_dir) / "results", 1
+    while holds_reconstruction(candidate):
+        n += 1
+        candidate = Path(scan_dir) / f"results-{n}"
+    return candidate
+
+
 def run_reconstruct(
     scan_dir: Path,
     processing: ProcessingConfig | None = None,

@@ -1,5 +1,6 @@
 """End-to-end simulated scans: tiny (few views, low resolution), killed and resumed, bad input."""
 
+import json
 import os
 import signal
 import subprocess
@@ -143,6 +144,24 @@ def test_sigterm_finishes_the_current_capture_and_leaves_a_resumable_scan(
     for i in store.captured_indices():
         store.read_capture(i)
     assert "aborted" in (out / "scan.log").read_text().lower()
+
+
+def test_offline_reconstruct_never_replaces_an_earlier_reconstruction(tiny_scan, tmp_path):
+    scan_dir = tiny_scan.scan_dir
+    first = (scan_dir / "results" / "mesh_poisson.ply").read_bytes()
+    cli = [sys.executable, "-m", "scanner.cli", "reconstruct", str(scan_dir), "--no-icp"]
+    r = subprocess.run(cli, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    second = scan_dir / "results-2"
+    assert f"results: {second}" in r.stdout
+    assert (scan_dir / "results" / "mesh_poisson.ply").read_bytes() == first
+    report = json.loads((second / "report.json").read_text())
+    assert report["captures_used"] == 5 and report["chamfer_mm"] > 0
+    # An explicit --out that holds a reconstruction is refused unless --force.
+    r = subprocess.run([*cli, "--out", str(second)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2 and "holds a reconstruction already" in r.stderr
+    assert "Traceback" not in r.stderr
+    assert json.loads((second / "report.json").read_text()) == report
 
 
 def test_resume_refuses_a_different_object(tiny_scan):
