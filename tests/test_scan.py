@@ -1,7 +1,6 @@
 """End-to-end simulated scans: tiny (few views, low resolution), killed and resumed, bad input."""
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -81,22 +80,27 @@ def _scanner(*args, env=None):
     return [sys.executable, "-m", "scanner.cli", "scan", *args]
 
 
-def test_killed_scan_resumes_without_duplicates(tiny_config_file, tmp_path, tiny_scan):
-    out = tmp_path / "killed"
+def _start_six_view_scan(tiny_config_file, out: Path, output) -> subprocess.Popen:
+    """A 6-view capture-only scan in a child process (these tests are about the captures)."""
     cfg = yaml.safe_load(tiny_config_file.read_text())
     cfg["views"]["count"] = 6
-    cfg["reconstruct"] = False  # this test is about the captures
-    config_file = tmp_path / "six.yaml"
+    cfg["reconstruct"] = False
+    config_file = out.parent / "six.yaml"
     config_file.write_text(yaml.safe_dump(cfg))
-    proc = subprocess.Popen(
-        _scanner("--config", str(config_file), "--out", str(out)),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        env=os.environ.copy(),
-    )
+    args = _scanner("--config", str(config_file), "--out", str(out))
+    return subprocess.Popen(args, stdout=output, stderr=output, text=True)
+
+
+def _wait_for_captures(proc: subprocess.Popen, out: Path, k: int) -> None:
     deadline = time.monotonic() + 240
-    while len(_captures(out)) < 2 and proc.poll() is None and time.monotonic() < deadline:
+    while len(_captures(out)) < k and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.02)
+
+
+def test_killed_scan_resumes_without_duplicates(tiny_config_file, tmp_path, tiny_scan):
+    out = tmp_path / "killed"
+    proc = _start_six_view_scan(tiny_config_file, out, subprocess.DEVNULL)
+    _wait_for_captures(proc, out, 2)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     k = len(_captures(out))
@@ -117,20 +121,8 @@ def test_sigterm_finishes_the_current_capture_and_leaves_a_resumable_scan(
     tiny_config_file, tmp_path
 ):
     out = tmp_path / "stopped"
-    cfg = yaml.safe_load(tiny_config_file.read_text())
-    cfg["views"]["count"] = 6
-    cfg["reconstruct"] = False
-    config_file = tmp_path / "six.yaml"
-    config_file.write_text(yaml.safe_dump(cfg))
-    proc = subprocess.Popen(
-        _scanner("--config", str(config_file), "--out", str(out)),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    deadline = time.monotonic() + 240
-    while len(_captures(out)) < 1 and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.02)
+    proc = _start_six_view_scan(tiny_config_file, out, subprocess.PIPE)
+    _wait_for_captures(proc, out, 1)
     proc.send_signal(signal.SIGTERM)
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr
