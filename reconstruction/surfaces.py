@@ -228,8 +228,10 @@ def masked_depth(
     p_D = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
     p_W = transform_points(view.X_WC @ view.depth.X_CD, p_D)
     keep = roi.contains(p_W)
-    if remove_points is not None:
-        keep &= apply_hook(remove_points, p_W, view.index)
+    if remove_points is not None and keep.any():
+        # The robot/cell test is the costly one: only on the points the region keeps.
+        inside = np.flatnonzero(keep)
+        keep[inside] = apply_hook(remove_points, p_W[inside], view.index)
     depth[v[~keep], u[~keep]] = 0
     return depth
 

@@ -45,6 +45,19 @@ def _signed_distance(kind: str, size: tuple[float, ...], p_GQ: np.ndarray) -> np
     raise ValueError(kind)
 
 
+def _bounding_radius(kind: str, size: tuple[float, ...]) -> float:
+    """Radius of a sphere about the primitive's origin that contains it."""
+    if kind == "sphere":
+        return size[0]
+    if kind == "box":
+        return float(np.linalg.norm(size)) / 2
+    if kind == "cylinder":
+        return float(np.hypot(size[0], size[1] / 2))
+    if kind == "capsule":
+        return size[0] + size[1] / 2
+    raise ValueError(kind)
+
+
 def _shape_record(shape) -> tuple[str, tuple[float, ...]] | None:
     if isinstance(shape, Sphere):
         return "sphere", (shape.radius(),)
@@ -93,8 +106,14 @@ def make_geometry_filter(
             else:
                 X_WG = query.GetPoseInWorld(prim.geometry_id)
                 R, p = X_WG.rotation().matrix(), X_WG.translation()
-            p_GQ = (points_W - p) @ R
-            mask &= _signed_distance(prim.kind, prim.size, p_GQ) > margin_m
+            # Only points within the primitive's bounding sphere (+ margin) can be too close:
+            # the exact distance runs on those few (the object is far from most of the arm).
+            reach = _bounding_radius(prim.kind, prim.size) + margin_m
+            d = points_W - p
+            near = np.flatnonzero(np.einsum("ij,ij->i", d, d) < reach**2)
+            if len(near):
+                p_GQ = (points_W[near] - p) @ R
+                mask[near] &= _signed_distance(prim.kind, prim.size, p_GQ) > margin_m
         return mask
 
     return keep

@@ -44,8 +44,14 @@ def _residual_plot(result: ReconstructionResult, path: Path) -> None:
     plt.close(fig)
 
 
+ERROR_MAP_MAX_POINTS = 60_000  # more dots than the 550 x 550 px panels can show; drawing is slow
+
+
 def _error_map(vertices: np.ndarray, error_mm: np.ndarray, path: Path, title: str) -> None:
     """Two orthographic views of the mesh vertices coloured by their distance to the truth."""
+    if len(vertices) > ERROR_MAP_MAX_POINTS:
+        pick = np.random.default_rng(0).choice(len(vertices), ERROR_MAP_MAX_POINTS, replace=False)
+        vertices, error_mm = vertices[pick], error_mm[pick]
     fig, axes = plt.subplots(1, 2, figsize=(10, 5))
     order = np.argsort(vertices[:, 1])
     for ax, (a, b, name) in zip(axes, ((0, 2, "x-z (side)"), (0, 1, "x-y (from below)"))):

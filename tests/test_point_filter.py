@@ -4,7 +4,7 @@ import numpy as np
 
 from robots.camera_tool import nominal_X_FC
 from robots.kinematics import Kinematics
-from robots.point_filter import _signed_distance, make_geometry_filter
+from robots.point_filter import _bounding_radius, _signed_distance, make_geometry_filter
 from robots.workcell import WorkcellConfig, build_workcell, keep_out_radius_m
 
 
@@ -15,6 +15,23 @@ def test_primitive_distances():
     np.testing.assert_allclose(
         _signed_distance("cylinder", (0.5, 2.0), p)[[0, 1, 3]], [-0.5, 0.5, 1.0]
     )
+
+
+def test_bounding_radius_encloses_each_primitive():
+    rng = np.random.default_rng(1)
+    directions = rng.normal(size=(2000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    for kind, size in (
+        ("sphere", (0.05,)),
+        ("box", (0.3, 0.1, 0.02)),
+        ("cylinder", (0.04, 0.5)),
+        ("capsule", (0.03, 0.2)),
+    ):
+        r = _bounding_radius(kind, size)
+        # Every point on the bounding sphere is outside (or on) the primitive ...
+        assert (_signed_distance(kind, size, r * directions) >= -1e-12).all(), kind
+        # ... and the sphere is not needlessly loose along some direction.
+        assert _signed_distance(kind, size, r * directions).min() < 0.01 * r, kind
 
 
 def test_filter_removes_cell_and_robot_keeps_object():
