@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -139,15 +141,46 @@ def load_mesh_file(path: Path, size_m: float) -> ObjectMesh:
     return _normalised(path.stem, np.asarray(mesh.vertices), np.asarray(mesh.triangles), size_m)
 
 
+MESH_PATH_ENV = "SCANNER_MESH_PATH"
+
+
+def find_named_mesh(name: str) -> Path | None:
+    """The mesh file called `name` in the folders of $SCANNER_MESH_PATH (os.pathsep-separated):
+    the file whose stem is `name`, else the one whose stem has `name` as a word (so `bunny`
+    finds `stanford-bunny.obj`); None when there is none; an error when several match."""
+    folders = [Path(f) for f in os.environ.get(MESH_PATH_ENV, "").split(os.pathsep) if f]
+    files = [
+        p
+        for folder in folders
+        if folder.is_dir()
+        for p in sorted(folder.iterdir())
+        if p.suffix.lower() in MESH_SUFFIXES and p.is_file()
+    ]
+    key = name.lower()
+    exact = [p for p in files if p.stem.lower() == key]
+    matches = exact or [p for p in files if key in re.split(r"[-_. ]+", p.stem.lower())]
+    if len(matches) > 1:
+        raise ScannerError(
+            f"object '{name}' is ambiguous in ${MESH_PATH_ENV}: "
+            f"{', '.join(str(p) for p in matches)}; give the file path"
+        )
+    return matches[0] if matches else None
+
+
 def resolve_object(spec: str, size_m: float) -> ObjectMesh:
-    """A built-in name or a mesh file path -> the object mesh at the requested size."""
+    """A built-in name, a mesh file path, or the name of a mesh in $SCANNER_MESH_PATH -> the
+    object mesh at the requested size."""
     if spec in BUILTIN_OBJECTS:
         return BUILTIN_OBJECTS[spec](size_m)
     if Path(spec).suffix.lower() in MESH_SUFFIXES:
         return load_mesh_file(Path(spec), size_m)
+    named = find_named_mesh(spec)
+    if named is not None:
+        return load_mesh_file(named, size_m)
     raise ScannerError(
-        f"unknown object '{spec}': use a built-in name ({', '.join(BUILTIN_OBJECTS)}) "
-        f"or a mesh file path ({', '.join(MESH_SUFFIXES)})"
+        f"unknown object '{spec}': use a built-in name ({', '.join(BUILTIN_OBJECTS)}), "
+        f"a mesh file path ({', '.join(MESH_SUFFIXES)}), or the name of a mesh file in a "
+        f"folder listed in ${MESH_PATH_ENV}"
     )
 
 

@@ -38,7 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     scan.add_argument(
         "--object",
         default=None,
-        help=f"built-in object ({BUILTIN_HELP}) or a mesh file (.obj/.ply/.stl); default vase",
+        help=f"built-in object ({BUILTIN_HELP}), a mesh file (.obj/.ply/.stl), or the name of "
+        "a mesh in a folder of $SCANNER_MESH_PATH; default vase",
     )
     scan.add_argument(
         "--size",

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from reconstruction.errors import ScannerError
-from robots.objects import BUILTIN_OBJECTS, resolve_object, write_textured_obj
+from robots.objects import BUILTIN_OBJECTS, find_named_mesh, resolve_object, write_textured_obj
 from tests.conftest import shared_data
 
 
@@ -77,3 +77,27 @@ def test_empty_and_nan_meshes(tmp_path):
     )
     with pytest.raises(ScannerError, match="NaN"):
         resolve_object(str(nan), 0.2)
+
+
+def _tetrahedron(path, scale):
+    v = scale * np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    faces = "f 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n"
+    path.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in v) + faces)
+
+
+def test_named_mesh_from_the_mesh_path(tmp_path, monkeypatch):
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir(), b.mkdir()
+    _tetrahedron(a / "stanford-bunny.obj", 1.0)
+    _tetrahedron(b / "spot.obj", 2.0)
+    _tetrahedron(b / "spot_old.obj", 3.0)
+    monkeypatch.setenv("SCANNER_MESH_PATH", f"{a}:{b}:{tmp_path / 'missing'}")
+    mesh = resolve_object("bunny", 0.1)  # a word of the file's stem
+    assert mesh.extent_m.max() == pytest.approx(0.1, abs=1e-9)
+    assert find_named_mesh("spot") == b / "spot.obj"  # the exact stem wins over spot_old
+    _tetrahedron(b / "bunny-v2.obj", 1.0)
+    with pytest.raises(ScannerError, match="ambiguous"):
+        resolve_object("bunny", 0.1)
+    with pytest.raises(ScannerError, match="SCANNER_MESH_PATH"):
+        resolve_object("teacup", 0.1)
+    assert resolve_object("vase", 0.1).extent_m.max() == pytest.approx(0.1, abs=1e-6)
