@@ -129,6 +129,14 @@ def write_summary(report: dict, out: Path) -> Path:
             "|---|---|",
         ]
         lines += [f"| {k} | {_fmt(report[k])} |" for k in keys if k in report]
+        if "observed_fraction" in report:
+            lines += [
+                "",
+                "`observed_fraction` is the share of the true surface that some camera had in "
+                "view (unoccluded, within 80 deg of facing it); the `*_observed_*` metrics are "
+                "restricted to it, the others count the unseen part (e.g. the top of a hung "
+                "object) as missing.",
+            ]
     if "handeye_error_mm" in report:
         lines += [
             "",
