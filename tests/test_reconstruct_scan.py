@@ -121,6 +121,8 @@ def test_results_are_written(runs):
         "error_map.png",
     ):
         assert (out / name).stat().st_size > 0, name
+    summary = (out / "summary.md").read_text()
+    assert "| chamfer_mm |" in summary and "share of the true surface" in summary
 
 
 def test_a_damaged_capture_is_skipped_and_reported(scan_dir, tmp_path):
