@@ -70,3 +70,45 @@ class StereoCameraDriver(abc.ABC):
 
 class CaptureError(RuntimeError):
     """The camera failed to deliver an image pair (the decision maker retries)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Hardware:
+    """A real (or any other) robot + stereo camera pair that a scan runs on instead of the
+    simulator; a driver module's factory returns one."""
+
+    robot: RobotDriver
+    camera: StereoCameraDriver
+
+
+def load_hardware(spec: str, config: object) -> Hardware:
+    """`package.module:factory` -> factory(config) -> Hardware, e.g. `my_cell.rx60:connect`.
+
+    The factory gets the whole scan configuration (cell, camera, ...) and connects to the
+    hardware; every failure to find or call it is a user error naming `spec`.
+    """
+    import importlib
+
+    from reconstruction.errors import ScannerError
+
+    module_name, _, attribute = spec.partition(":")
+    if not module_name or not attribute:
+        raise ScannerError(f"driver: expected 'package.module:factory', got '{spec}'")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as e:
+        raise ScannerError(f"driver: cannot import '{module_name}' ({e})") from None
+    factory = getattr(module, attribute, None)
+    if not callable(factory):
+        raise ScannerError(f"driver: '{module_name}' has no callable '{attribute}'")
+    hardware = factory(config)
+    if not (
+        isinstance(hardware, Hardware)
+        and isinstance(hardware.robot, RobotDriver)
+        and isinstance(hardware.camera, StereoCameraDriver)
+    ):
+        raise ScannerError(
+            f"driver: {spec} returned {type(hardware).__name__}; expected robots.drivers.Hardware"
+            " holding a RobotDriver and a StereoCameraDriver"
+        )
+    return hardware

@@ -69,6 +69,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="calibration file from `scanner calibrate` (stereo model and hand-eye X_FC)",
     )
     scan.add_argument(
+        "--driver",
+        default=None,
+        metavar="MODULE:FACTORY",
+        help="scan with real hardware: factory(config) returns robots.drivers.Hardware "
+        "(default: the Drake simulation)",
+    )
+    scan.add_argument(
         "--resume", type=Path, default=None, metavar="DIR", help="continue an interrupted scan"
     )
     scan.add_argument(
@@ -241,6 +248,7 @@ def _scan(args: argparse.Namespace) -> int:
         radius_m=args.radius,
         seed=args.seed,
         calibration_file=str(args.calibration) if args.calibration else None,
+        driver=args.driver,
     )
     if args.resume is not None:
         if args.out is not None:

@@ -70,6 +70,9 @@ class ScanConfig:
     processing: ProcessingConfig = field(default_factory=ProcessingConfig)
     # Reconstruct at the end of the scan (off: capture only; `scanner reconstruct` later).
     reconstruct: bool = True
+    # Real hardware instead of the simulator: 'package.module:factory', factory(config) ->
+    # robots.drivers.Hardware (robot + stereo camera drivers). None: the Drake simulation.
+    driver: str | None = None
 
     @property
     def scan_center_m(self) -> tuple[float, float, float]:
@@ -96,6 +99,7 @@ def with_overrides(
     radius_m: float | None = None,
     seed: int | None = None,
     calibration_file: str | None = None,
+    driver: str | None = None,
 ) -> ScanConfig:
     """Command-line flags win over the file; each override is validated like the file."""
     if object_spec is not None:
@@ -110,4 +114,6 @@ def with_overrides(
         config = replace(config, error_model=replace(config.error_model, seed=seed))
     if calibration_file is not None:
         config = replace(config, calibration_file=calibration_file)
+    if driver is not None:
+        config = replace(config, driver=driver)
     return config

@@ -17,15 +17,15 @@ import numpy as np
 from planners.ik import Viewpoint
 from planners.planner import Planner
 from reconstruction.calibration_file import load_calibration
-from reconstruction.camera_model import stereo_camera_to_dict
+from reconstruction.camera_model import StereoCamera, stereo_camera_to_dict
 from reconstruction.errors import ScannerError
 from robots import camera_tool
-from robots.drivers import RobotDriver
+from robots.drivers import RobotDriver, StereoCameraDriver, load_hardware
 from robots.kinematics import Kinematics
 from robots.rx60 import RX60, rx60_urdf
 from robots.simulation import Simulation, cache_dir, create_simulation, object_vertices_W
 from robots.truth import save_truth
-from robots.workcell import build_workcell, keep_out_radius_m
+from robots.workcell import Workcell, build_workcell, keep_out_radius_m
 from scanner.captures import CaptureStore, atomic_write_text
 from scanner.config import ScanConfig, scan_config_from_dict, scan_config_to_dict
 from scanner.decision import DecisionMaker, FixedViewList, MachineSettings, RunSummary
@@ -123,17 +123,17 @@ def _check_resume_matches(saved: ScanConfig, requested: ScanConfig | None, where
 
 
 class _WatchedRobot(RobotDriver):
-    """Plays every executed trajectory in Meshcat before the simulated arm takes it."""
+    """Plays every executed trajectory in Meshcat before the arm takes it."""
 
-    def __init__(self, sim: Simulation, live) -> None:
-        self._sim, self._live = sim, live
+    def __init__(self, robot: RobotDriver, live, joint_offsets_rad: np.ndarray) -> None:
+        self._robot, self._live, self._offsets = robot, live, joint_offsets_rad
 
     def joint_positions(self) -> np.ndarray:
-        return self._sim.robot.joint_positions()
+        return self._robot.joint_positions()
 
     def execute(self, trajectory) -> None:
-        self._live.play(trajectory, self._sim.truth.joint_offsets_rad)
-        self._sim.robot.execute(trajectory)
+        self._live.play(trajectory, self._offsets)
+        self._robot.execute(trajectory)
 
 
 def software_camera(config: ScanConfig):
@@ -207,23 +207,48 @@ def check_stereo_reach(config: ScanConfig, stereo) -> None:
         )
 
 
-def _setup_world(config: ScanConfig, meshcat=None):
-    design = config.camera.stereo_camera()
-    sim = create_simulation(
-        config.cell,
-        config.object,
-        config.error_model,
-        design,
-        camera_tool.nominal_X_FC(design.baseline_m),
-        meshcat=meshcat,
-    )
+@dataclass(frozen=True, eq=False)
+class _World:
+    """What a scan runs on: the simulator's arm and camera or a hardware driver's."""
+
+    robot: RobotDriver
+    camera: StereoCameraDriver
+    planner: Planner
+    stereo: StereoCamera  # what the software believes (nominal or calibrated)
+    X_FC: np.ndarray
+    sim: Simulation | None  # None on hardware: no truth
+    shown_cell: Workcell | None  # the cell Meshcat shows (built with meshcat=)
+
+    @property
+    def joint_offsets_rad(self) -> np.ndarray:
+        return self.sim.truth.joint_offsets_rad if self.sim else np.zeros(6)
+
+
+def _setup_world(config: ScanConfig, meshcat=None) -> _World:
     stereo, X_FC = software_camera(config)
     check_stereo_reach(config, stereo)
-    planner_cell = build_workcell(config.cell, None, X_FC, stereo.X_CR)
+    sim = hardware = None
+    if config.driver:
+        hardware = load_hardware(config.driver, config)
+    else:
+        design = config.camera.stereo_camera()
+        sim = create_simulation(
+            config.cell,
+            config.object,
+            config.error_model,
+            design,
+            camera_tool.nominal_X_FC(design.baseline_m),
+            meshcat=meshcat,
+        )
+    planner_cell = build_workcell(
+        config.cell, None, X_FC, stereo.X_CR, meshcat=meshcat if hardware else None
+    )
     # Scans always cache the roadmap (a second scan of the same cell starts at once).
     roadmaps = config.planner.cache_dir or str(cache_dir() / "roadmaps")
     planner = Planner(planner_cell, X_FC, stereo.X_CR, replace(config.planner, cache_dir=roadmaps))
-    return sim, planner, stereo, X_FC
+    if hardware:
+        return _World(hardware.robot, hardware.camera, planner, stereo, X_FC, None, planner_cell)
+    return _World(sim.robot, sim.camera, planner, stereo, X_FC, sim, sim.workcell)
 
 
 def _manifest(config: ScanConfig, stereo, X_FC, views, plan_info: dict) -> dict:
@@ -315,11 +340,12 @@ def run_scan(
 
             mc = Meshcat()
             print(f"Meshcat: {mc.web_url()}", flush=True)
-        sim, planner, stereo, X_FC = _setup_world(config, mc if meshcat else None)
+        world = _setup_world(config, mc if meshcat else None)
+        planner, stereo, X_FC = world.planner, world.stereo, world.X_FC
         if meshcat:
-            live = LiveView(sim.workcell, mc, kin.X_WF)
-            live.show(sim.robot.true_joint_positions())
-    q_home = sim.robot.joint_positions()
+            live = LiveView(world.shown_cell, mc, kin.X_WF)
+            live.show(world.robot.joint_positions() + world.joint_offsets_rad)
+    q_home = world.robot.joint_positions()
     if resume is None:
         with stages("viewpoints"):
             plan = generate_viewpoints(
@@ -336,7 +362,8 @@ def run_scan(
         store = CaptureStore.create(
             out_dir, _manifest(config, stereo, X_FC, views, plan_info), force
         )
-        _write_truth(store, sim)
+        if world.sim is not None:
+            _write_truth(store, world.sim)
     else:
         views = _views_from_manifest(manifest["viewpoints"], str(store.manifest_path))
         store.update_manifest(status="running")
@@ -346,11 +373,11 @@ def run_scan(
         tour = plan_tour(q_home, todo, planner.estimate_duration_s)
     ordered = [todo[k] for k in tour.order]
     preferred = {todo[k].index: tour.option[k] for k in range(len(todo))}
-    robot = _WatchedRobot(sim, live) if live else sim.robot
+    robot = _WatchedRobot(world.robot, live, world.joint_offsets_rad) if live else world.robot
     machine = DecisionMaker(
         planner,
         robot,
-        sim.camera,
+        world.camera,
         store,
         FixedViewList(ordered, preferred),
         len(views),

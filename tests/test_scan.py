@@ -5,6 +5,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -154,6 +155,43 @@ def test_offline_reconstruct_never_replaces_an_earlier_reconstruction(tiny_scan,
     assert r.returncode == 2 and "holds a reconstruction already" in r.stderr
     assert "Traceback" not in r.stderr
     assert json.loads((second / "report.json").read_text()) == report
+
+
+def test_a_scan_runs_on_a_hardware_driver(tiny_config_file, tmp_path):
+    config = load_scan_config(tiny_config_file)
+    config = replace(config, driver="tests.simulated_hardware:connect")
+    config = replace(config, views=replace(config.views, count=3))
+    result = run_scan(config, tmp_path / "hw")
+    r = result.report
+    assert r["status"] == "complete" and r["views_captured"] == 3
+    # Hardware knows no truth: nothing is written that only the simulator could know, and the
+    # reconstruction still runs (without metrics).
+    assert not (result.scan_dir / "truth.yaml").exists()
+    assert "chamfer_mm" not in r
+    assert (result.scan_dir / "results" / "mesh_poisson.ply").stat().st_size > 0
+    manifest = CaptureStore.open(result.scan_dir).read_manifest()
+    assert manifest["config"]["driver"] == "tests.simulated_hardware:connect"
+
+
+@pytest.mark.parametrize(
+    "driver, needle",
+    [
+        ("no_such_module:connect", "cannot import 'no_such_module'"),
+        ("tests.simulated_hardware:nothing", "has no callable 'nothing'"),
+        ("tests.simulated_hardware:not_hardware", "expected robots.drivers.Hardware"),
+        ("tests.simulated_hardware", "expected 'package.module:factory'"),
+    ],
+)
+def test_bad_driver_is_a_user_error(tmp_path, driver, needle):
+    r = subprocess.run(
+        _scanner("--driver", driver, "--views", "2", "--out", str(tmp_path / "x")),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 2 and needle in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+    assert not (tmp_path / "x").exists()
 
 
 def test_resume_refuses_a_different_object(tiny_scan):
