@@ -1,7 +1,8 @@
 """`scanner calibrate`: stereo + hand-eye calibration (simulated or offline) and eye-to-hand.
 
 Three entry points, one solver (reconstruction.calibration):
-- `run_simulated` (scanner.calibrate_sim): a board on a stand in the simulated cell; the arm
+- `run_eye_in_hand` (scanner.calibrate_sim): a board on a stand in the simulated cell (or the
+  real one, through `driver`); the arm
   visits K stations chosen for conditioning (scanner.calibration_stations), each stereo pair and
   the joint positions go to a calibration directory (the scans' crash-safe CaptureStore), then
   `calibrate_directory`.
@@ -127,6 +128,9 @@ class CalibrateConfig:
     eye_to_hand: EyeToHandConfig = field(default_factory=EyeToHandConfig)
     # Stations are in open space in front of the robot: a smaller roadmap than a scan's does.
     planner: PlannerConfig = field(default_factory=lambda: PlannerConfig(roadmap_milestones=400))
+    # Real hardware for eye-in-hand runs: 'package.module:factory' (see robots.drivers.Hardware);
+    # the board then stands where `placement` says. None: the Drake simulation.
+    driver: str | None = None
 
 
 def load_calibrate_config(path: Path | None) -> CalibrateConfig:

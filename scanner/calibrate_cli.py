@@ -19,7 +19,7 @@ from scanner.calibrate import (
     load_calibrate_config,
 )
 from scanner.calibrate_eye_to_hand import run_eye_to_hand
-from scanner.calibrate_sim import run_simulated
+from scanner.calibrate_sim import run_eye_in_hand
 from scanner.progress import ProgressBar
 
 
@@ -68,6 +68,10 @@ def _config(args: argparse.Namespace) -> CalibrateConfig:
         config = replace(config, error_model=replace(config.error_model, seed=args.seed))
     if args.stations is not None:
         config = replace(config, stations=replace(config.stations, count=args.stations))
+    if args.driver is not None:
+        if args.offline is not None:
+            raise ScannerError("--offline calibrates recorded data; do not give --driver")
+        config = replace(config, driver=args.driver)
     board = board_from_args(args, config.board)
     if board is not config.board:
         config = replace(config, board=board)
@@ -140,6 +144,6 @@ def run_calibrate_command(args: argparse.Namespace) -> int:
         return 0
     out = args.out or Path("calibrations") / f"calib-{_stamp()}"
     with ProgressBar("stations") as bar:
-        run = run_simulated(config, out, args.force, progress=bar.update)
+        run = run_eye_in_hand(config, out, args.force, progress=bar.update)
     _print_summary(run.report, run.out_dir, run.calibration_file)
     return 0

@@ -69,6 +69,11 @@ def run_eye_to_hand(
 ) -> dict:
     """Drive the marker over the grid, fit X_WS, evaluate on random held-out points."""
 
+    if config.driver:
+        raise ScannerError(
+            "eye-to-hand calibration runs in the simulator only (it renders the blinking "
+            "marker); drop the driver"
+        )
     t0 = time.perf_counter()
     e2h = config.eye_to_hand
     marker = BlinkingMarker(e2h.marker, cache_dir() / "markers")

@@ -1,5 +1,6 @@
-"""`scanner calibrate` in simulation: stations visited on the planner's trajectories, captured
-into a calibration directory, then solved exactly like recorded data."""
+"""`scanner calibrate` eye-in-hand, in simulation (or on a hardware driver): stations visited on
+the planner's trajectories, captured into a calibration directory, then solved exactly like
+recorded data."""
 
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from robots.calibration_board import (
     board_fingerprint,
     write_board_obj,
 )
+from robots.drivers import Hardware, RobotDriver, StereoCameraDriver, load_hardware
 from robots.kinematics import Kinematics
 from robots.simulation import Simulation, cache_dir, create_simulation
 from robots.truth import save_truth
@@ -44,12 +46,15 @@ from scanner.typed_yaml import to_dict
 # --------------------------------------------------------------------------------------------
 @dataclass
 class CalibrationWorld:
-    """The simulated cell with the board, and the software's (nominal) view of it."""
+    """The cell with the board (simulated, or real through a driver), and the software's
+    (nominal) view of it."""
 
-    sim: Simulation
+    sim: Simulation | None  # None on hardware
+    robot: RobotDriver
+    camera: StereoCameraDriver
     stereo: StereoCamera  # nominal
     X_FC: np.ndarray  # nominal
-    X_WB: np.ndarray  # true board pose (evaluation only)
+    X_WB: np.ndarray  # the configured board pose (in simulation also the true one)
     kinematics: Kinematics
     planner: Planner  # on the software's view of the cell (board, no object)
 
@@ -58,8 +63,8 @@ class CalibrationWorld:
 
 
 def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> CalibrationWorld:
-    """The true simulated cell (board on its stand unless with_board is False, no object) and a
-    collision checker on the software's view of the same cell."""
+    """The true simulated cell (board on its stand unless with_board is False, no object), or
+    the hardware of `config.driver`, and a collision checker on the software's view of the cell."""
     stereo = config.camera.stereo_camera()
     X_FC = camera_tool.nominal_X_FC(stereo.baseline_m)
     fixtures = ()
@@ -68,9 +73,14 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
         fixtures = (
             BoardFixture(config.board, config.placement, write_board_obj(config.board, directory)),
         )
-    sim = create_simulation(
-        config.cell, None, config.error_model, stereo, X_FC, extras=(*fixtures, *extras)
-    )
+    sim = None
+    if config.driver:
+        hardware = load_hardware(config.driver, config)
+    else:
+        sim = create_simulation(
+            config.cell, None, config.error_model, stereo, X_FC, extras=(*fixtures, *extras)
+        )
+        hardware = Hardware(sim.robot, sim.camera)
     planner_cell = build_workcell(
         config.cell, None, X_FC, stereo.X_CR, extras=fixtures, include_object=False
     )
@@ -79,6 +89,8 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
     )
     return CalibrationWorld(
         sim,
+        hardware.robot,
+        hardware.camera,
         stereo,
         X_FC,
         config.placement.X_WB(config.board),
@@ -89,7 +101,7 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
 
 def planner_reachable(world: CalibrationWorld):
     """Collision-free IK solutions (with the planner's padding) for a look-at viewpoint."""
-    q0 = world.sim.robot.joint_positions()
+    q0 = world.robot.joint_positions()
     return lambda viewpoint: world.planner.reachable(viewpoint, q0)
 
 
@@ -110,7 +122,7 @@ class PlannedMover:
         return True
 
 
-def run_simulated(
+def run_eye_in_hand(
     config: CalibrateConfig,
     out_dir: Path,
     force: bool = False,
@@ -128,7 +140,6 @@ def run_simulated(
             f"--offline {out_dir} to calibrate again from its captures"
         )
     world = build_world(config)
-    sim = world.sim
     plan = plan_stations(
         config.stations,
         config.board,
@@ -136,9 +147,9 @@ def run_simulated(
         world.stereo,
         world.X_FC,
         reachable or planner_reachable(world),
-        sim.robot.joint_positions(),
+        world.robot.joint_positions(),
     )
-    move_to = move_to or PlannedMover(world.planner.plan, sim.robot)
+    move_to = move_to or PlannedMover(world.planner.plan, world.robot)
     manifest = {
         "kind": "calibration",
         "board": to_dict(config.board),
@@ -160,7 +171,8 @@ def run_simulated(
         "stations_candidates": plan.candidates,
     }
     store = CaptureStore.create(out_dir, manifest, force)
-    save_truth(sim.truth, store.root / "truth.yaml", {"X_WB": world.X_WB.tolist()})
+    if world.sim is not None:
+        save_truth(world.sim.truth, store.root / "truth.yaml", {"X_WB": world.X_WB.tolist()})
     skipped = []
     t_capture = time.perf_counter()
     for k, station in enumerate(plan.stations):
@@ -168,8 +180,8 @@ def run_simulated(
             reason = getattr(move_to, "last_failure", "") or "no collision-free path"
             skipped.append({"index": station.index, "reason": reason})
             continue
-        pair = sim.camera.capture()
-        q = sim.robot.joint_positions()
+        pair = world.camera.capture()
+        q = world.robot.joint_positions()
         store.write_capture(
             Capture(
                 station.index,

@@ -163,6 +163,13 @@ def _add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> None:
     calibrate.add_argument(
         "--stations", type=int, default=None, help="number of board views to take (default 20)"
     )
+    calibrate.add_argument(
+        "--driver",
+        default=None,
+        metavar="MODULE:FACTORY",
+        help="eye-in-hand on real hardware (see `scan --driver`); the board stands where the "
+        "configuration's placement says",
+    )
     board = calibrate.add_argument_group("board (simulation default: chessboard 10x7, 0.02 m)")
     board.add_argument("--board", default=None, help="charuco, chessboard or circles_asymmetric")
     board.add_argument(

@@ -22,14 +22,14 @@ from pathlib import Path
 
 from scanner.calibrate import CalibrateConfig
 from scanner.calibrate_eye_to_hand import run_eye_to_hand
-from scanner.calibrate_sim import run_simulated
+from scanner.calibrate_sim import run_eye_in_hand
 
 
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         os.environ.setdefault("SCANNER_CACHE", str(Path(tmp) / "cache"))
         config = CalibrateConfig()
-        run = run_simulated(config, Path(tmp) / "eye_in_hand")
+        run = run_eye_in_hand(config, Path(tmp) / "eye_in_hand")
         e2h = run_eye_to_hand(config, Path(tmp) / "eye_to_hand")
     report, truth = run.report, run.report["truth"]
     out = {

@@ -20,3 +20,13 @@ def connect(config) -> Hardware:
 
 def not_hardware(config):
     return "a robot"
+
+
+def connect_board_cell(config) -> Hardware:
+    """The calibration cell (board on its stand) of `scanner calibrate --driver ...`."""
+    from dataclasses import replace
+
+    from scanner.calibrate_sim import build_world
+
+    world = build_world(replace(config, driver=None))
+    return Hardware(world.robot, world.camera)

@@ -18,7 +18,7 @@ from robots import camera_tool
 from robots.truth import load_truth
 from scanner.calibrate import CalibrateConfig
 from scanner.calibrate_eye_to_hand import run_eye_to_hand
-from scanner.calibrate_sim import run_simulated
+from scanner.calibrate_sim import run_eye_in_hand
 from scanner.captures import CaptureStore
 
 HANDEYE_TOL_M = 0.3e-3  # the target
@@ -29,7 +29,7 @@ EYE_TO_HAND_MEAN_TOL_M = 1.0e-3
 
 @pytest.fixture(scope="session")
 def sim_calibration(tmp_path_factory):
-    return run_simulated(CalibrateConfig(), tmp_path_factory.mktemp("calibration") / "run")
+    return run_eye_in_hand(CalibrateConfig(), tmp_path_factory.mktemp("calibration") / "run")
 
 
 def test_hand_eye_matches_the_truth(sim_calibration):
@@ -121,3 +121,21 @@ def test_an_unreachable_board_is_a_clear_error():
             planner_reachable(world),
             world.sim.robot.joint_positions(),
         )
+
+
+def test_eye_in_hand_on_a_hardware_driver(tmp_path):
+    from dataclasses import replace
+
+    from reconstruction.rigid import pose_error
+    from scanner.calibrate_sim import build_world
+
+    config = CalibrateConfig()
+    config = replace(config, stations=replace(config.stations, count=12))
+    hardware = replace(config, driver="tests.simulated_hardware:connect_board_cell")
+    run = run_eye_in_hand(hardware, tmp_path / "hw")
+    assert not (tmp_path / "hw" / "truth.yaml").exists()
+    assert run.report.get("truth") is None
+    # The driver wraps the same seeded simulator: its truth is known to the test only.
+    X_FC_true = build_world(config).sim.truth.X_FC
+    error_m, error_rad = pose_error(run.solution.hand_eye.X_FC, X_FC_true)
+    assert error_m < 0.5e-3 and error_rad < math.radians(0.1)

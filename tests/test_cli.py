@@ -75,3 +75,16 @@ def test_printed_config_loads_back_as_the_same_configuration(tmp_path):
     bad.write_text(r.stdout.replace("radius_m: 0.5", "radius_mm: 500"))
     r = _run("scan", "--config", str(bad), "--print-config")
     assert r.returncode == 2 and "unknown key(s) radius_mm" in r.stderr
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["--offline", ".", "--driver", "m:f"], "do not give --driver"),
+        (["--eye-to-hand", "--driver", "tests.simulated_hardware:connect"], "simulator only"),
+    ],
+)
+def test_calibrate_driver_misuse_is_refused(args, needle, tmp_path):
+    r = _run("calibrate", *args, "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and needle in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "out").exists()
