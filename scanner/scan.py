@@ -224,6 +224,19 @@ class _World:
         return self.sim.truth.joint_offsets_rad if self.sim else np.zeros(6)
 
 
+def simulated_cell(config: ScanConfig, meshcat=None) -> Simulation:
+    """The true simulated world of a scan: its object, error model and camera design."""
+    design = config.camera.stereo_camera()
+    return create_simulation(
+        config.cell,
+        config.object,
+        config.error_model,
+        design,
+        camera_tool.nominal_X_FC(design.baseline_m),
+        meshcat=meshcat,
+    )
+
+
 def _setup_world(config: ScanConfig, meshcat=None) -> _World:
     stereo, X_FC = software_camera(config)
     check_stereo_reach(config, stereo)
@@ -231,15 +244,7 @@ def _setup_world(config: ScanConfig, meshcat=None) -> _World:
     if config.driver:
         hardware = load_hardware(config.driver, config)
     else:
-        design = config.camera.stereo_camera()
-        sim = create_simulation(
-            config.cell,
-            config.object,
-            config.error_model,
-            design,
-            camera_tool.nominal_X_FC(design.baseline_m),
-            meshcat=meshcat,
-        )
+        sim = simulated_cell(config, meshcat)
     planner_cell = build_workcell(
         config.cell, None, X_FC, stereo.X_CR, meshcat=meshcat if hardware else None
     )

@@ -1,20 +1,13 @@
 """A hardware driver module for the tests: the simulator's arm and camera, loaded through
 `--driver tests.simulated_hardware:connect` exactly like a real robot's driver would be."""
 
-from robots import camera_tool
 from robots.drivers import Hardware
-from robots.simulation import create_simulation
+from scanner.scan import simulated_cell
 
 
 def connect(config) -> Hardware:
-    design = config.camera.stereo_camera()
-    sim = create_simulation(
-        config.cell,
-        config.object,
-        config.error_model,
-        design,
-        camera_tool.nominal_X_FC(design.baseline_m),
-    )
+    """The scan cell of `scanner scan --driver tests.simulated_hardware:connect`."""
+    sim = simulated_cell(config)
     return Hardware(sim.robot, sim.camera)
 
 
