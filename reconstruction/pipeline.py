@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -279,16 +280,22 @@ def build_surfaces(
     depth_views = [
         DepthView(v.depth, X, v.index) for v, X in zip(views, X_WC) if v.depth is not None
     ]
-    meshes: dict[str, SurfaceMesh] = {}
-    for method in config.surfaces.methods:
-        if method == "tsdf" and not depth_views:
-            notes.append("TSDF skipped: the views carry no depth maps")
-            continue
+    methods = list(config.surfaces.methods)
+    if "tsdf" in methods and not depth_views:
+        notes.append("TSDF skipped: the views carry no depth maps")
+        methods.remove("tsdf")
+
+    def build(method: str) -> SurfaceMesh:
         with _timed(timings, method):
-            meshes[method] = build_surface(
+            return build_surface(
                 method, fused, config.surfaces, depth_views, config.filter.roi, remove_points
             )
-    return fused, meshes, notes
+
+    # Open3D releases the GIL: the (single-threaded, for determinism) Poisson solve runs on one
+    # core while TSDF fusion runs on the other.
+    with ThreadPoolExecutor(max_workers=max(1, len(methods))) as pool:
+        built = list(pool.map(build, methods))
+    return fused, dict(zip(methods, built, strict=True)), notes
 
 
 def reconstruct_views(

@@ -20,10 +20,11 @@ from scanner.scan import _setup_world, _views_from_manifest, run_scan
 
 def naive_order_motion_s(config: ScanConfig, scan_dir: Path) -> float:
     """Sum of planned trajectory durations visiting the scan's views in generation order."""
-    sim, planner, _, _ = _setup_world(config)
+    world = _setup_world(config)
+    planner = world.planner
     store = CaptureStore.open(scan_dir)
     views = _views_from_manifest(store.read_manifest()["viewpoints"], "manifest")
-    q = sim.robot.joint_positions()
+    q = world.robot.joint_positions()
     total = 0.0
     for view in sorted(views, key=lambda v: v.index):
         for option in view.options:
