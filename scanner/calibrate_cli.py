@@ -109,6 +109,8 @@ def _print_summary(report: dict, out: Path, calibration_file: Path) -> None:
 
 def run_calibrate_command(args: argparse.Namespace) -> int:
     config = _config(args)
+    if args.resume is not None and (args.eye_to_hand or args.offline is not None):
+        raise ScannerError("--resume continues an eye-in-hand run, not --eye-to-hand/--offline")
     if args.eye_to_hand:
         if args.offline is not None:
             raise ScannerError("--eye-to-hand runs in the simulator; do not give --offline")
@@ -142,8 +144,15 @@ def run_calibrate_command(args: argparse.Namespace) -> int:
         run = calibrate_directory(root, options, config.solver, out)
         _print_summary(run.report, run.out_dir, run.calibration_file)
         return 0
-    out = args.out or Path("calibrations") / f"calib-{_stamp()}"
+    if args.resume is not None:
+        if args.out is not None or args.force:
+            raise ScannerError("--resume DIR continues DIR; do not give --out or --force")
+        out = args.resume
+    else:
+        out = args.out or Path("calibrations") / f"calib-{_stamp()}"
     with ProgressBar("stations") as bar:
-        run = run_eye_in_hand(config, out, args.force, progress=bar.update)
+        run = run_eye_in_hand(
+            config, out, args.force, progress=bar.update, resume=args.resume is not None
+        )
     _print_summary(run.report, run.out_dir, run.calibration_file)
     return 0

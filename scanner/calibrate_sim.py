@@ -122,6 +122,30 @@ class PlannedMover:
         return True
 
 
+def _check_resume_matches(manifest: dict, config: CalibrateConfig, where: Path) -> None:
+    if manifest.get("kind") != "calibration" or "stations" not in manifest:
+        raise ScannerError(f"{where}: not a calibration directory (scan.yaml has no stations)")
+    wanted = {
+        "board": to_dict(config.board),
+        "placement": to_dict(config.placement),
+        "camera": stereo_camera_to_dict(config.camera.stereo_camera()),
+        "driver": config.driver,
+    }
+    differing = sorted(k for k, v in wanted.items() if manifest.get(k) != v)
+    if differing:
+        raise ScannerError(
+            f"{where}: the calibration was started with a different {', '.join(differing)}; "
+            "resume with the same configuration"
+        )
+
+
+def _station_list(manifest: dict, where: str) -> list[tuple[int, np.ndarray]]:
+    try:
+        return [(int(s["index"]), np.array(s["q_rad"], float)) for s in manifest["stations"]]
+    except (KeyError, TypeError, ValueError) as e:
+        raise ScannerError(f"{where}: malformed station list ({e})") from None
+
+
 def run_eye_in_hand(
     config: CalibrateConfig,
     out_dir: Path,
@@ -129,17 +153,74 @@ def run_eye_in_hand(
     move_to: MoveFn | None = None,
     reachable=None,
     progress: Callable[[int, int], None] | None = None,
+    resume: bool = False,
 ) -> CalibrationRun:
-    """Plan stations, capture each into a calibration directory, then calibrate from it."""
+    """Plan stations, capture each into a calibration directory, then calibrate from it.
+    `resume`: continue the run in `out_dir` (its stations, the captures it lacks)."""
 
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
-    if out_dir.exists() and any(out_dir.iterdir()) and not force:
-        raise ScannerError(
-            f"{out_dir}: exists and is not empty; use --force to replace it, or "
-            f"--offline {out_dir} to calibrate again from its captures"
+    if resume:
+        store = CaptureStore.open(out_dir)
+        manifest = store.read_manifest()
+        _check_resume_matches(manifest, config, out_dir)
+        stations = _station_list(manifest, str(store.manifest_path))
+        store.remove_partial_captures()
+        world = build_world(config)
+    else:
+        if out_dir.exists() and any(out_dir.iterdir()) and not force:
+            raise ScannerError(
+                f"{out_dir}: exists and is not empty; use --force to replace it, --resume "
+                f"{out_dir} to finish its captures, or --offline {out_dir} to calibrate again "
+                "from them"
+            )
+        world = build_world(config)
+        store, stations = _start_run(config, world, out_dir, force, reachable)
+    move_to = move_to or PlannedMover(world.planner.plan, world.robot)
+    done = set(store.captured_indices())
+    skipped = []
+    t_capture = time.perf_counter()
+    for index, q_goal in stations:
+        if index in done:
+            continue
+        if not move_to(q_goal):
+            reason = getattr(move_to, "last_failure", "") or "no collision-free path"
+            skipped.append({"index": index, "reason": reason})
+            continue
+        pair = world.camera.capture()
+        q = world.robot.joint_positions()
+        store.write_capture(
+            Capture(
+                index,
+                len(stations),
+                q,
+                world.kinematics.X_WF(q),
+                pair.stamp_s,
+                pair.left,
+                pair.right,
+            )
         )
-    world = build_world(config)
+        if progress:
+            progress(len(store.captured_indices()), len(stations))
+    capture_s = time.perf_counter() - t_capture
+    store.update_manifest(status="captured", skipped_stations=skipped)
+    run = calibrate_directory(
+        store.root,
+        OfflineOptions(board=config.board),
+        config.solver,
+        extra_report={"stations_skipped": skipped, "capture_s": capture_s},
+    )
+    run.report["calibrate_s"] = time.perf_counter() - t0
+    atomic_write_text(
+        store.root / "results" / "report.json", json.dumps(run.report, indent=2) + "\n"
+    )
+    return run
+
+
+def _start_run(
+    config: CalibrateConfig, world: CalibrationWorld, out_dir: Path, force: bool, reachable
+) -> tuple[CaptureStore, list[tuple[int, np.ndarray]]]:
+    """Plan the stations and create the calibration directory (manifest + truth in simulation)."""
     plan = plan_stations(
         config.stations,
         config.board,
@@ -149,7 +230,6 @@ def run_eye_in_hand(
         reachable or planner_reachable(world),
         world.robot.joint_positions(),
     )
-    move_to = move_to or PlannedMover(world.planner.plan, world.robot)
     manifest = {
         "kind": "calibration",
         "board": to_dict(config.board),
@@ -169,42 +249,9 @@ def run_eye_in_hand(
         ],
         "stations_reachable": plan.reachable,
         "stations_candidates": plan.candidates,
+        "driver": config.driver,
     }
     store = CaptureStore.create(out_dir, manifest, force)
     if world.sim is not None:
         save_truth(world.sim.truth, store.root / "truth.yaml", {"X_WB": world.X_WB.tolist()})
-    skipped = []
-    t_capture = time.perf_counter()
-    for k, station in enumerate(plan.stations):
-        if not move_to(station.q):
-            reason = getattr(move_to, "last_failure", "") or "no collision-free path"
-            skipped.append({"index": station.index, "reason": reason})
-            continue
-        pair = world.camera.capture()
-        q = world.robot.joint_positions()
-        store.write_capture(
-            Capture(
-                station.index,
-                len(plan.stations),
-                q,
-                world.kinematics.X_WF(q),
-                pair.stamp_s,
-                pair.left,
-                pair.right,
-            )
-        )
-        if progress:
-            progress(k + 1, len(plan.stations))
-    capture_s = time.perf_counter() - t_capture
-    store.update_manifest(status="captured", skipped_stations=skipped)
-    run = calibrate_directory(
-        store.root,
-        OfflineOptions(board=config.board),
-        config.solver,
-        extra_report={"stations_skipped": skipped, "capture_s": capture_s},
-    )
-    run.report["calibrate_s"] = time.perf_counter() - t0
-    atomic_write_text(
-        store.root / "results" / "report.json", json.dumps(run.report, indent=2) + "\n"
-    )
-    return run
+    return store, [(s.index, s.q) for s in plan.stations]

@@ -159,6 +159,13 @@ def _add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> None:
     calibrate.add_argument("--out", type=Path, default=None, help="calibration directory")
     calibrate.add_argument("--config", type=Path, default=None, help="calibration YAML file")
     calibrate.add_argument("--force", action="store_true", help="replace an existing --out")
+    calibrate.add_argument(
+        "--resume",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="finish an interrupted eye-in-hand run: capture the stations it lacks, then solve",
+    )
     calibrate.add_argument("--seed", type=int, default=None, help="seed of the simulated errors")
     calibrate.add_argument(
         "--stations", type=int, default=None, help="number of board views to take (default 20)"

@@ -139,3 +139,41 @@ def test_eye_in_hand_on_a_hardware_driver(tmp_path):
     X_FC_true = build_world(config).sim.truth.X_FC
     error_m, error_rad = pose_error(run.solution.hand_eye.X_FC, X_FC_true)
     assert error_m < 0.5e-3 and error_rad < math.radians(0.1)
+
+
+def test_an_interrupted_calibration_resumes_without_repeating_captures(tmp_path):
+    from dataclasses import replace
+
+    config = CalibrateConfig()
+    config = replace(config, stations=replace(config.stations, count=10))
+    out = tmp_path / "cal"
+
+    def stop_after_three(done, total):
+        if done == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_eye_in_hand(config, out, progress=stop_after_three)
+    store = CaptureStore.open(out)
+    assert store.captured_indices() == [0, 1, 2]
+    before = {i: (out / "captures" / f"{i:04d}" / "left.png").read_bytes() for i in range(3)}
+    with pytest.raises(ScannerError, match="exists and is not empty.*--resume"):
+        run_eye_in_hand(config, out)
+    other_board = replace(config, board=replace(config.board, spacing_m=0.025))
+    with pytest.raises(ScannerError, match="different board"):
+        run_eye_in_hand(other_board, out, resume=True)
+
+    run = run_eye_in_hand(config, out, resume=True)
+    assert CaptureStore.open(out).captured_indices() == list(range(10))
+    for i, data in before.items():
+        assert (out / "captures" / f"{i:04d}" / "left.png").read_bytes() == data
+    assert run.report["poses"] == 10
+    assert run.report["truth"]["handeye_error_m"] < 0.5e-3
+
+
+def test_resume_of_a_folder_that_is_not_a_calibration(tmp_path):
+    from scanner.captures import CaptureStore as Store
+
+    Store.create(tmp_path / "scan", {"kind": "scan", "pose_count": 1})
+    with pytest.raises(ScannerError, match="not a calibration directory"):
+        run_eye_in_hand(CalibrateConfig(), tmp_path / "scan", resume=True)
