@@ -84,8 +84,9 @@ class Hardware:
 def load_hardware(spec: str, config: object) -> Hardware:
     """`package.module:factory` -> factory(config) -> Hardware, e.g. `my_cell.rx60:connect`.
 
-    The factory gets the whole scan configuration (cell, camera, ...) and connects to the
-    hardware; every failure to find or call it is a user error naming `spec`.
+    The factory gets the command's whole configuration (a ScanConfig or a CalibrateConfig:
+    cell, camera, ...) and connects to the hardware; every failure to find or call it is a user
+    error naming `spec`.
     """
     import importlib
 
