@@ -3,7 +3,7 @@
     planner = Planner(workcell, X_FC, X_CR, PlannerConfig(cache_dir=...))
     qs = planner.reachable(viewpoint, q_now)          # collision-free IK solutions, best first
     result = planner.plan(q_now, qs[0])               # Trajectory | PlanFailure
-    tour = planner.plan_tour(q_now, [qs_view1, qs_view2, ...])
+    planner.estimate_duration_s(q_a, q_b)             # for ordering tours (planners.tour)
 
 Every Trajectory returned has passed `validation.validate_trajectory` (dense joint steps,
 collision with padding, position/velocity/acceleration limits); a plan that fails it is reported
@@ -11,8 +11,7 @@ as a PlanFailure, never returned. PlanFailure.reason is one of PLAN_FAILURE_REAS
 - "start_invalid": the start is outside the joint limits or in collision (within the padding);
 - "goal_invalid": the same for the goal (e.g. a goal inside an obstacle);
 - "no_path": no collision-free path was found (roadmap, then RRTConnect within query_time_s);
-- "validation_failed": paths were found but none survived time parameterisation + validation;
-- "goal_unreachable": (tours) no alternative configuration of a viewpoint could be reached.
+- "validation_failed": paths were found but none survived time parameterisation + validation.
 Malformed input (wrong shape, NaN, a viewpoint inside the object) raises ScannerError.
 """
 
@@ -54,17 +53,12 @@ from planners.timing import (
     time_parameterise,
 )
 from planners.validation import ValidationReport, validate_trajectory
+from reconstruction.checks import require_count, require_positive
 from reconstruction.errors import ScannerError
 from robots.rx60 import RX60, rx60_urdf
 from robots.workcell import Workcell, keep_out_radius_m
 
-PLAN_FAILURE_REASONS = (
-    "start_invalid",
-    "goal_invalid",
-    "goal_unreachable",
-    "no_path",
-    "validation_failed",
-)
+PLAN_FAILURE_REASONS = ("start_invalid", "goal_invalid", "no_path", "validation_failed")
 _DEG = math.pi / 180.0
 
 
@@ -94,7 +88,8 @@ class PlannerConfig:
     toppra_limit_fraction: float = 0.95
     # When the validation finds a limit exceeded: retries with twice the grid, 0.9 x the limits.
     toppra_retries: int = 2
-    # Dense validation: sample spacing (issue: <= 0.25 deg per joint) and relative slack on the
+    # Dense validation: sample spacing (at most 0.25 deg per joint, so that no obstacle thinner
+    # than the padding slips between samples at the arm's reach) and relative slack on the
     # velocity/acceleration limits (numerical noise only).
     max_joint_step_rad: float = 0.25 * _DEG
     limit_tolerance: float = 1e-6
@@ -107,46 +102,46 @@ class PlannerConfig:
     seed: int = 1
 
     def __post_init__(self) -> None:
-        positive = (
-            "padding_m",
-            "prm_build_time_s",
-            "edge_step_rad",
-            "query_time_s",
-            "max_joint_step_rad",
-            "min_move_rad",
-            "creep_time_s",
+        require_positive(
+            "planner",
+            self,
+            (
+                "padding_m",
+                "prm_build_time_s",
+                "edge_step_rad",
+                "query_time_s",
+                "max_joint_step_rad",
+                "min_move_rad",
+                "creep_time_s",
+            ),
         )
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ScannerError(f"planner.{name}: expected a positive number, got {value!r}")
-        counts = (
-            "roadmap_milestones",
-            "prm_neighbours",
-            "query_neighbours",
-            "query_max_edge_checks",
-            "shortcut_steps",
-            "toppra_gridpoints_per_segment",
+        require_count(
+            "planner",
+            self,
+            (
+                "roadmap_milestones",
+                "prm_neighbours",
+                "query_neighbours",
+                "query_max_edge_checks",
+                "shortcut_steps",
+            ),
         )
-        for name in counts:
-            value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 1):
-                raise ScannerError(f"planner.{name}: expected an integer >= 1, got {value!r}")
-        if self.toppra_gridpoints_per_segment < 2:
-            raise ScannerError("planner.toppra_gridpoints_per_segment: at least 2")
+        require_count("planner", self, ("toppra_gridpoints_per_segment",), minimum=2)
         if not 0 < self.toppra_limit_fraction <= 1:
             raise ScannerError("planner.toppra_limit_fraction: must be in (0, 1]")
         if self.edge_step_rad > 0.5 * _DEG + 1e-12:
-            raise ScannerError("planner.edge_step_rad: at most 0.5 deg (issue 3)")
+            raise ScannerError(
+                f"planner.edge_step_rad: at most 0.5 deg (0.00873 rad), got {self.edge_step_rad}"
+            )
         if self.max_joint_step_rad > 0.25 * _DEG + 1e-12:
-            raise ScannerError("planner.max_joint_step_rad: at most 0.25 deg (issue 3)")
+            raise ScannerError(
+                "planner.max_joint_step_rad: at most 0.25 deg (0.00436 rad), got "
+                f"{self.max_joint_step_rad}"
+            )
         if not (0 <= self.limit_tolerance < 0.01):
             raise ScannerError("planner.limit_tolerance: must be in [0, 0.01)")
-        if not (isinstance(self.toppra_retries, int) and self.toppra_retries >= 0):
-            raise ScannerError("planner.toppra_retries: expected an integer >= 0")
-        # OMPL rejects a zero seed.
-        if not (isinstance(self.seed, int) and self.seed >= 1):
-            raise ScannerError(f"planner.seed: expected an integer >= 1, got {self.seed!r}")
+        require_count("planner", self, ("toppra_retries",), minimum=0)
+        require_count("planner", self, ("seed",))  # OMPL rejects a zero seed
 
     def roadmap_parameters(self) -> dict:
         """The fields the roadmap depends on (the cache key), not the query-time ones."""
@@ -167,35 +162,6 @@ class PlanFailure:
     def __post_init__(self) -> None:
         if self.reason not in PLAN_FAILURE_REASONS:
             raise ValueError(f"unknown reason {self.reason!r}; valid: {PLAN_FAILURE_REASONS}")
-
-
-@dataclass(frozen=True, eq=False)
-class TourLeg:
-    """One viewpoint of a tour: its index in the goals list, the configuration chosen (None if
-    unreachable) and the motion to it from the previous leg's end (or why there is none)."""
-
-    goal_index: int
-    q_goal: np.ndarray | None
-    result: Trajectory | PlanFailure
-
-
-@dataclass(frozen=True, eq=False)
-class Tour:
-    """Legs in visiting order; unreachable viewpoints are legs with a PlanFailure (skipped)."""
-
-    legs: tuple[TourLeg, ...]
-
-    @property
-    def trajectories(self) -> list[Trajectory]:
-        return [leg.result for leg in self.legs if isinstance(leg.result, Trajectory)]
-
-    @property
-    def duration_s(self) -> float:
-        return float(sum(t.duration_s for t in self.trajectories))
-
-    @property
-    def skipped(self) -> list[int]:
-        return [leg.goal_index for leg in self.legs if isinstance(leg.result, PlanFailure)]
 
 
 def _as_configuration(q, name: str) -> np.ndarray:
@@ -475,95 +441,6 @@ class Planner:
             self.config.max_joint_step_rad,
             self.config.limit_tolerance,
         )
-
-    def plan_tour(
-        self, q_start, goals: Sequence[Sequence[np.ndarray]], reorder: bool = False
-    ) -> Tour:
-        """Visit several viewpoints, each given by its alternative configurations.
-
-        reorder=False keeps the given order; True first orders the viewpoints greedily by
-        estimated motion time (nearest next, then 2-opt). For the chosen order, the
-        alternatives are picked to minimise the estimated total time (dynamic programming);
-        a leg that cannot be planned tries the viewpoint's other alternatives, and a viewpoint
-        none of whose alternatives can be reached is skipped (a "goal_unreachable" leg).
-        """
-        q = _as_configuration(q_start, "q_start")
-        options = [
-            [_as_configuration(g, f"goals[{i}]") for g in alt] for i, alt in enumerate(goals)
-        ]
-        order = list(range(len(options)))
-        if reorder:
-            order = self._order_viewpoints(q, options)
-        legs: list[TourLeg] = []
-        for position, index in enumerate(order):
-            remaining = [options[i] for i in order[position:]]
-            ranked = self._rank_first_choice(q, remaining)
-            result: Trajectory | PlanFailure = PlanFailure(
-                "goal_unreachable", f"viewpoint {index} has no configuration"
-            )
-            reasons = []
-            for choice in ranked:
-                attempt = self.plan(q, options[index][choice])
-                if isinstance(attempt, Trajectory):
-                    result = attempt
-                    legs.append(TourLeg(index, options[index][choice], attempt))
-                    q = options[index][choice]
-                    break
-                reasons.append(f"alternative {choice}: {attempt.reason} ({attempt.detail})")
-            else:
-                if reasons:
-                    result = PlanFailure("goal_unreachable", "; ".join(reasons))
-                legs.append(TourLeg(index, None, result))
-        return Tour(tuple(legs))
-
-    def _rank_first_choice(self, q: np.ndarray, remaining: list[list[np.ndarray]]) -> list[int]:
-        """Alternatives of remaining[0], best first by the estimated time of the rest of the
-        tour (Viterbi over the alternatives of every later viewpoint that has any)."""
-        if not remaining or not remaining[0]:
-            return []
-        first = np.array(remaining[0])
-        total = straight_line_time_s(first - q[None, :], self._v, self._a)
-        later = [np.array(alternatives) for alternatives in remaining[1:] if len(alternatives)]
-        if later:
-            # cost_to_go[j]: best estimated time from alternative j of later[k] to the end.
-            cost_to_go = np.zeros(len(later[-1]))
-            for here, nxt in zip(later[-2::-1], later[:0:-1]):
-                step = straight_line_time_s(nxt[None, :, :] - here[:, None, :], self._v, self._a)
-                cost_to_go = np.min(step + cost_to_go[None, :], axis=1)
-            step = straight_line_time_s(later[0][None, :, :] - first[:, None, :], self._v, self._a)
-            total = total + np.min(step + cost_to_go[None, :], axis=1)
-        return [int(i) for i in np.argsort(total, kind="stable")]
-
-    def _order_viewpoints(self, q: np.ndarray, options: list[list[np.ndarray]]) -> list[int]:
-        """Nearest-next then 2-opt on the estimated time between viewpoints' closest
-        alternatives; viewpoints without any alternative go last."""
-        live = [i for i, alternatives in enumerate(options) if alternatives]
-        dead = [i for i, alternatives in enumerate(options) if not alternatives]
-        if len(live) <= 1:
-            return live + dead
-
-        def gap(a: list[np.ndarray], b: list[np.ndarray]) -> float:
-            d = np.array(b)[None, :, :] - np.array(a)[:, None, :]
-            return float(straight_line_time_s(d, self._v, self._a).min())
-
-        cost = {(i, j): gap(options[i], options[j]) for i in live for j in live if i != j}
-        start = {j: gap([q], options[j]) for j in live}
-        order = [min(live, key=lambda j: start[j])]
-        while len(order) < len(live):
-            order.append(min((j for j in live if j not in order), key=lambda j: cost[order[-1], j]))
-
-        def length(o: list[int]) -> float:
-            return start[o[0]] + sum(cost[a, b] for a, b in zip(o[:-1], o[1:]))
-
-        improved = True
-        while improved:
-            improved = False
-            for i in range(len(order) - 1):
-                for j in range(i + 1, len(order)):
-                    candidate = order[:i] + order[i : j + 1][::-1] + order[j + 1 :]
-                    if length(candidate) < length(order) - 1e-12:
-                        order, improved = candidate, True
-        return order + dead
 
 
 def _version(distribution: str) -> str:

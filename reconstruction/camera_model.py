@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 
 from reconstruction.errors import ScannerError
+from reconstruction.transforms import invert, make_pose
 from reconstruction.yaml_files import read_yaml
 
 SCHEMA = "scanner.stereo_camera/1"
@@ -107,10 +108,21 @@ class StereoCamera:
     @property
     def X_CR(self) -> np.ndarray:
         """Pose of the right camera in the left camera frame (4x4)."""
-        X = np.eye(4)
-        X[:3, :3] = self.R.T
-        X[:3, 3] = -self.R.T @ self.T
-        return X
+        return invert(make_pose(self.R, self.T))
+
+
+def project_points(camera: PinholeCamera, p_S: np.ndarray) -> np.ndarray:
+    """(N, 2) pixels of points p_S (N, 3) in the camera's optical frame S, through OpenCV's
+    k1 k2 p1 p2 k3 distortion (what cv2.projectPoints computes, vectorised)."""
+    x = p_S[:, 0] / p_S[:, 2]
+    y = p_S[:, 1] / p_S[:, 2]
+    k1, k2, p1, p2, k3 = camera.distortion
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    K = camera.K
+    return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)
 
 
 def default_stereo_camera(

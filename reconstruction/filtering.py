@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 
+from reconstruction.checks import require_count, require_positive
 from reconstruction.errors import ScannerError
-from reconstruction.poses import transform_points
+from reconstruction.transforms import transform_points
 
 # points_W (N, 3), view index -> keep mask (N,) bool. The robots package implements it with the
 # Drake geometry of the robot, tool, rod and cell at the view's recorded configuration.
@@ -43,8 +44,7 @@ class RegionOfInterest:
             len(self.center_m) != 3 or not all(math.isfinite(c) for c in self.center_m)
         ):
             raise ScannerError(f"roi.center_m: expected three finite numbers, got {self.center_m}")
-        if not self.radius_m > 0:
-            raise ScannerError(f"roi.radius_m: must be positive, got {self.radius_m}")
+        require_positive("roi", self, ("radius_m",))
         if len(self.half_extent_m) != 3 or not all(h > 0 for h in self.half_extent_m):
             raise ScannerError(
                 f"roi.half_extent_m: three positive numbers, got {self.half_extent_m}"
@@ -63,7 +63,7 @@ class RegionOfInterest:
 class FilterConfig:
     roi: RegionOfInterest = field(default_factory=RegionOfInterest)
     # 1 mm voxels: the pixel footprint is 0.38 mm at 0.5 m (f = 1320 px), so each voxel averages
-    # ~7 stereo points (noise 0.17 mm median, DESIGN.md) while every later stage (finest ICP
+    # ~7 stereo points (median depth noise ~0.2 mm) while every later stage (finest ICP
     # level, hand-eye targets, fused cloud) works at 1 mm anyway.
     voxel_size_m: float = 0.001
     outlier_neighbors: int = 20
@@ -75,14 +75,10 @@ class FilterConfig:
     min_points: int = 200
 
     def __post_init__(self) -> None:
-        for name in ("voxel_size_m", "normal_radius_m", "outlier_std_ratio"):
-            if not getattr(self, name) > 0:
-                raise ScannerError(f"filter.{name}: must be positive, got {getattr(self, name)}")
-        if self.outlier_neighbors < 0 or self.normal_max_neighbors < 3 or self.min_points < 3:
-            raise ScannerError(
-                "filter: outlier_neighbors >= 0 (0 disables), normal_max_neighbors >= 3, "
-                "min_points >= 3"
-            )
+        require_positive("filter", self, ("voxel_size_m", "normal_radius_m", "outlier_std_ratio"))
+        # outlier_neighbors 0 disables the statistical outlier removal.
+        require_count("filter", self, ("outlier_neighbors",), minimum=0)
+        require_count("filter", self, ("normal_max_neighbors", "min_points"), minimum=3)
 
 
 @dataclass(frozen=True)

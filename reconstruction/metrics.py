@@ -24,7 +24,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from reconstruction.poses import pose_difference
+from reconstruction.transforms import pose_difference
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,19 +11,16 @@ sets (`ViewResult.X_WC_kinematic`, `.X_WC_registered`, `.X_WC`) and the filtered
 `build_surfaces` can mesh each variant without filtering and registering again.
 
 The stages are public (`filter_views`, `register_views`, `correct_handeye`, `build_surfaces`)
-for a caller that writes files between them. No file I/O here: `save_outputs` writes files
-when asked, and `summary` gives a plain record for a report.
+for a caller that writes files between them. No file I/O here: `reconstruction.outputs` writes
+the files and the plain record of a result.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 
@@ -35,9 +32,8 @@ from reconstruction.filtering import (
     RemovePoints,
     filter_view,
 )
-from reconstruction.handeye import HandEyeConfig, HandEyeResult, correct_handeye
+from reconstruction.handeye_correction import HandEyeConfig, HandEyeResult, correct_handeye
 from reconstruction.posegraph import PoseEdge, PoseGraphConfig, optimise_pose_graph
-from reconstruction.poses import check_pose, pose_difference
 from reconstruction.registration import (
     IcpConfig,
     build_pyramid,
@@ -46,6 +42,7 @@ from reconstruction.registration import (
     register_pair,
     select_pairs,
 )
+from reconstruction.stage_timer import StageTimer
 from reconstruction.surfaces import (
     DepthView,
     FusedCloud,
@@ -53,10 +50,8 @@ from reconstruction.surfaces import (
     SurfaceMesh,
     build_surface,
     fuse_clouds,
-    mesh_quality,
-    save_cloud,
-    save_mesh,
 )
+from reconstruction.transforms import check_pose
 from reconstruction.views import ViewCloud
 
 
@@ -75,7 +70,7 @@ class ReconstructionConfig:
 
     def __post_init__(self) -> None:
         if self.min_views < 1:
-            raise ScannerError("reconstruction.min_views: must be >= 1")
+            raise ScannerError(f"reconstruction.min_views: must be >= 1, got {self.min_views}")
 
 
 def _pose_only(c: ReconstructionConfig) -> ReconstructionConfig:
@@ -150,15 +145,6 @@ class ReconstructionResult:
     clouds: tuple[FilteredCloud, ...]  # per kept view, in C (for `build_surfaces`)
 
 
-@contextmanager
-def _timed(timings: dict[str, float], stage: str):
-    t0 = time.perf_counter()
-    try:
-        yield
-    finally:
-        timings[stage] = timings.get(stage, 0.0) + time.perf_counter() - t0
-
-
 def filter_views(
     views: Sequence[ViewCloud],
     X_FC_nominal: np.ndarray,
@@ -201,11 +187,11 @@ def register_views(
     X_WC_kinematic: Sequence[np.ndarray],
     indices: Sequence[int],
     config: ReconstructionConfig,
-    timings: dict[str, float],
+    timer: StageTimer,
 ) -> RegisteredViews:
     """Pair selection, pairwise ICP with edge checks, and the pose graph. With ICP off, only
     the overlapping pairs (for the hand-eye refinement)."""
-    with _timed(timings, "pairs"):
+    with timer("pairs"):
         pyramids = [build_pyramid(c, config.icp) for c in clouds]
         candidates = select_pairs(X_WC_kinematic, pyramids, config.icp)
     pairs = tuple((p.source, p.target) for p in candidates)
@@ -213,7 +199,7 @@ def register_views(
         return RegisteredViews(pairs, None, (), ())
 
     registrations, edges = [], []
-    with _timed(timings, "icp"):
+    with timer("icp"):
         for p in candidates:
             prior = kinematic_X_TS(X_WC_kinematic, p)
             reg = register_pair(pyramids[p.source], pyramids[p.target], prior, config.icp)
@@ -232,7 +218,7 @@ def register_views(
                         p.kind,
                     )
                 )
-    with _timed(timings, "pose_graph"):
+    with timer("pose_graph"):
         graph = optimise_pose_graph(X_WC_kinematic, edges, config.pose_graph)
     residual = {(r.source, r.target): r for r in graph.residuals}
     report = []
@@ -268,14 +254,14 @@ def build_surfaces(
     X_WC: Sequence[np.ndarray],
     config: ReconstructionConfig,
     remove_points: RemovePoints | None = None,
-    timings: dict[str, float] | None = None,
+    timer: StageTimer | None = None,
 ) -> tuple[FusedCloud, dict[str, SurfaceMesh], list[str]]:
     """Fused cloud and the configured meshes for one set of camera poses. Also what a
     benchmark calls with the other pose sets of a result (kinematic, registered) to compare
     variants without re-running registration. Returns (fused, meshes by method, notes)."""
-    timings = {} if timings is None else timings
+    timer = timer or StageTimer()
     notes = []
-    with _timed(timings, "fuse"):
+    with timer("fuse"):
         fused = fuse_clouds(clouds, X_WC, config.surfaces.fused_voxel_size_m)
     depth_views = [
         DepthView(v.depth, X, v.index) for v, X in zip(views, X_WC) if v.depth is not None
@@ -286,7 +272,7 @@ def build_surfaces(
         methods.remove("tsdf")
 
     def build(method: str) -> SurfaceMesh:
-        with _timed(timings, method):
+        with timer(method):
             return build_surface(
                 method, fused, config.surfaces, depth_views, config.filter.roi, remove_points
             )
@@ -309,10 +295,10 @@ def reconstruct_views(
     indices = [v.index for v in views]
     if len(set(indices)) != len(indices):
         raise ScannerError("views: capture indices must be unique")
-    timings: dict[str, float] = {}
+    timer = StageTimer()
     notes: list[str] = []
 
-    with _timed(timings, "filter"):
+    with timer("filter"):
         views, clouds, skipped = filter_views(views, X_FC_nominal, config, remove_points)
     if len(views) < config.min_views:
         raise ScannerError(
@@ -324,7 +310,7 @@ def reconstruct_views(
 
     registered = RegisteredViews((), None, (), ())
     if (config.icp.enabled or config.handeye.enabled) and len(views) >= 2:
-        registered = register_views(clouds, X_WC_kin, [v.index for v in views], config, timings)
+        registered = register_views(clouds, X_WC_kin, [v.index for v in views], config, timer)
         if not registered.pairs:
             notes.append("no overlapping view pairs: registration and correction skipped")
 
@@ -332,7 +318,7 @@ def reconstruct_views(
     X_FC = X_FC_nominal
     X_WC = list(registered.X_WC) if registered.X_WC is not None else X_WC_kin
     if config.handeye.enabled and len(views) >= 2:
-        with _timed(timings, "handeye"):
+        with timer("handeye"):
             handeye = correct_handeye(
                 clouds, X_WF, registered.X_WC, registered.pairs, X_FC_nominal, config.handeye
             )
@@ -340,12 +326,12 @@ def reconstruct_views(
         notes += handeye.notes
         X_WC = [X @ X_FC for X in X_WF]
         if config.final_pose_graph and registered.kept_edges:
-            with _timed(timings, "pose_graph"):
+            with timer("pose_graph"):
                 graph = optimise_pose_graph(X_WC, registered.kept_edges, config.pose_graph)
             X_WC = list(graph.X_WC)
 
     fused, meshes, surface_notes = build_surfaces(
-        views, clouds, X_WC, config, remove_points, timings
+        views, clouds, X_WC, config, remove_points, timer
     )
     notes += surface_notes
     view_results = tuple(
@@ -366,100 +352,8 @@ def reconstruct_views(
         handeye,
         fused,
         meshes,
-        timings,
+        timer.seconds,
         tuple(skipped),
         tuple(notes),
         tuple(clouds),
     )
-
-
-def _quality_record(quality, longest: int = 10) -> dict:
-    """Mesh topology for the report; only the longest boundary loops (the rim, big holes)."""
-    record = dict(vars(quality))
-    loops = record.pop("boundary_loops_m")
-    record["boundary_loops"] = len(loops)
-    record["longest_boundary_loops_m"] = list(loops[:longest])
-    return record
-
-
-def summary(result: ReconstructionResult) -> dict:
-    """A plain, YAML/JSON-ready record of the result (SI units; matrices as nested lists)."""
-    he = result.handeye
-    dt, dr = pose_difference(result.X_FC_nominal, result.X_FC)
-    out: dict = {
-        "views": [
-            {
-                "index": v.index,
-                "points": v.counts.after_outliers,
-                "X_WC": v.X_WC.tolist(),
-                "X_WC_kinematic": v.X_WC_kinematic.tolist(),
-            }
-            for v in result.views
-        ],
-        "skipped_views": [{"index": i, "reason": why} for i, why in result.skipped_views],
-        "edges": [
-            {
-                "source": e.source,
-                "target": e.target,
-                "kind": e.kind,
-                "fitness": e.fitness,
-                "inlier_rmse_m": e.inlier_rmse_m,
-                "status": e.status,
-                "residual_translation_m": e.residual_translation_m,
-                "residual_rotation_rad": e.residual_rotation_rad,
-            }
-            for e in result.edges
-        ],
-        "X_FC_nominal": result.X_FC_nominal.tolist(),
-        "X_FC": result.X_FC.tolist(),
-        "X_FC_change_translation_m": dt,
-        "X_FC_change_rotation_rad": dr,
-        "fused_points": len(result.fused),
-        "meshes": {name: _quality_record(mesh_quality(m)) for name, m in result.meshes.items()},
-        "timings_s": result.timings_s,
-        "notes": list(result.notes),
-    }
-    if he is not None:
-        out["handeye"] = {
-            "source": he.source,
-            "axxb": {
-                name: {
-                    "X_FC": s.X_FC.tolist(),
-                    "rms_translation_m": s.rms_translation_m,
-                    "rms_rotation_rad": s.rms_rotation_rad,
-                    "rejected_views": list(s.rejected_views),
-                    "error": s.error,
-                }
-                for name, s in he.axxb.items()
-            },
-        }
-        if he.refinement is not None:
-            r = he.refinement
-            out["handeye"]["refinement"] = {
-                "rms_before_m": r.rms_before_m,
-                "rms_after_m": r.rms_after_m,
-                "matches": r.n_matches,
-                "iterations": r.iterations,
-                "converged": r.converged,
-                "formal_std": r.formal_std.tolist(),
-                "weakest_mode": r.weakest_mode.tolist(),
-                "weakest_sensitivity": r.weakest_sensitivity,
-            }
-    return out
-
-
-def save_outputs(
-    result: ReconstructionResult, directory: Path, mesh_suffixes: Sequence[str] = (".ply",)
-) -> dict[str, Path]:
-    """Write fused_cloud.ply and mesh_<method><suffix> for each mesh and suffix; returns the
-    paths by name."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    paths = {"fused_cloud": directory / "fused_cloud.ply"}
-    save_cloud(result.fused, paths["fused_cloud"])
-    for name, mesh in result.meshes.items():
-        for suffix in mesh_suffixes:
-            path = directory / f"mesh_{name}{suffix}"
-            save_mesh(mesh, path)
-            paths[f"mesh_{name}{suffix}"] = path
-    return paths

@@ -17,9 +17,15 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
+from reconstruction.checks import (
+    require_choice,
+    require_count,
+    require_fraction,
+    require_positive,
+)
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import FilteredCloud, estimate_normals_towards, o3d_cloud
-from reconstruction.poses import invert, pose_difference, rotation_angle_rad, transform_points
+from reconstruction.transforms import invert, pose_difference, rotation_angle_rad, transform_points
 
 _reg = o3d.pipelines.registration
 
@@ -44,10 +50,8 @@ class IcpLevel:
     max_iterations: int
 
     def __post_init__(self) -> None:
-        if not (self.voxel_size_m > 0 and self.max_correspondence_m > 0):
-            raise ScannerError("icp.levels: voxel_size_m and max_correspondence_m must be > 0")
-        if self.max_iterations < 1:
-            raise ScannerError("icp.levels: max_iterations must be >= 1")
+        require_positive("icp.levels", self, ("voxel_size_m", "max_correspondence_m"))
+        require_count("icp.levels", self, ("max_iterations",))
 
 
 def _default_levels() -> tuple[IcpLevel, ...]:
@@ -89,28 +93,23 @@ class IcpConfig:
     def __post_init__(self) -> None:
         if not self.levels:
             raise ScannerError("icp.levels: at least one level is needed")
-        if self.robust_kernel not in ROBUST_KERNELS:
-            raise ScannerError(
-                f"icp.robust_kernel: '{self.robust_kernel}' is not one of "
-                f"{', '.join(ROBUST_KERNELS)}"
-            )
+        require_choice("icp", "robust_kernel", self.robust_kernel, ROBUST_KERNELS)
         if not 0 < self.max_pair_angle_rad <= math.pi:
             raise ScannerError("icp.max_pair_angle_rad: must be in (0, pi]")
-        if self.max_pairs_per_view < 1:
-            raise ScannerError("icp.max_pairs_per_view: must be >= 1")
-        for name in ("min_overlap", "min_fitness"):
-            if not 0 <= getattr(self, name) <= 1:
-                raise ScannerError(f"icp.{name}: must be in [0, 1]")
-        for name in (
-            "normal_radius_factor",
-            "robust_kernel_scale",
-            "overlap_distance_m",
-            "max_inlier_rmse_m",
-            "max_prior_translation_m",
-            "max_prior_rotation_rad",
-        ):
-            if not getattr(self, name) > 0:
-                raise ScannerError(f"icp.{name}: must be positive")
+        require_count("icp", self, ("max_pairs_per_view", "normal_max_neighbors"))
+        require_fraction("icp", self, ("min_overlap", "min_fitness"))
+        require_positive(
+            "icp",
+            self,
+            (
+                "normal_radius_factor",
+                "robust_kernel_scale",
+                "overlap_distance_m",
+                "max_inlier_rmse_m",
+                "max_prior_translation_m",
+                "max_prior_rotation_rad",
+            ),
+        )
 
 
 @dataclass(frozen=True, eq=False)

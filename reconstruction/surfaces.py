@@ -19,6 +19,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from reconstruction.checks import require_count, require_non_negative, require_positive
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import (
     FilteredCloud,
@@ -27,7 +28,7 @@ from reconstruction.filtering import (
     apply_hook,
     o3d_cloud,
 )
-from reconstruction.poses import invert, rotate_vectors, transform_points
+from reconstruction.transforms import invert, rotate_vectors, transform_points
 from reconstruction.views import DepthImage
 
 MESH_SUFFIXES = (".ply", ".obj", ".stl")
@@ -41,12 +42,12 @@ class SurfaceConfig:
     fused_voxel_size_m: float = 0.001
     # Poisson depth 9 over a 0.2 m object: ~0.4 mm cells, finer than the stereo noise.
     poisson_depth: int = 9
-    # Density trimming (the prototype's 2 %, DESIGN.md) punches holes in well-covered surfaces
+    # Density trimming (2 % in a prototype of this pipeline) punches holes in well-covered surfaces
     # too (356 holes on a fully covered synthetic pebble); trimming by distance to the data
     # removes what Poisson invents on the unseen side and keeps observed surfaces closed.
     poisson_density_quantile: float = 0.0
     poisson_max_distance_m: float = 0.002
-    # 1 mm voxels: ~0.2 mm Chamfer in < 1 s in the prototype (DESIGN.md).
+    # 1 mm voxels: ~0.2 mm Chamfer in < 1 s in a prototype of this pipeline (24 views).
     tsdf_voxel_size_m: float = 0.001
     tsdf_truncation_voxels: float = 4.0
     tsdf_depth_max_m: float = 1.5
@@ -55,6 +56,10 @@ class SurfaceConfig:
     ball_pivoting_radii_m: tuple[float, ...] = (0.001, 0.002, 0.004)
     # Components with fewer triangles than this fraction of the largest one are debris.
     min_component_fraction: float = 0.02
+    # Holes whose boundary fits in a sphere of this radius are closed: at 1 mm fused voxels the
+    # data cannot show a hole that small, so it is a meshing artefact (Poisson leaves such
+    # loops where its trimming cuts a single triangle out), not a feature of the object.
+    fill_holes_max_radius_m: float = 0.001
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in SURFACE_METHODS]
@@ -63,23 +68,25 @@ class SurfaceConfig:
                 f"surfaces.methods: unknown {', '.join(unknown)}; valid: "
                 f"{', '.join(SURFACE_METHODS)}"
             )
-        for name in (
-            "fused_voxel_size_m",
-            "poisson_max_distance_m",
-            "tsdf_voxel_size_m",
-            "tsdf_truncation_voxels",
-            "tsdf_depth_max_m",
-        ):
-            if not getattr(self, name) > 0:
-                raise ScannerError(f"surfaces.{name}: must be positive")
+        require_positive(
+            "surfaces",
+            self,
+            (
+                "fused_voxel_size_m",
+                "poisson_max_distance_m",
+                "tsdf_voxel_size_m",
+                "tsdf_truncation_voxels",
+                "tsdf_depth_max_m",
+            ),
+        )
+        require_non_negative("surfaces", self, ("fill_holes_max_radius_m",))
         if not 0 <= self.poisson_density_quantile < 1 or not 0 <= self.min_component_fraction < 1:
             raise ScannerError(
                 "surfaces: poisson_density_quantile and min_component_fraction in [0, 1)"
             )
         if not 4 <= self.poisson_depth <= 12:
             raise ScannerError("surfaces.poisson_depth: between 4 and 12")
-        if self.tsdf_min_views < 1:
-            raise ScannerError("surfaces.tsdf_min_views: must be >= 1")
+        require_count("surfaces", self, ("tsdf_min_views", "tsdf_block_count"))
         if not self.ball_pivoting_radii_m or min(self.ball_pivoting_radii_m) <= 0:
             raise ScannerError("surfaces.ball_pivoting_radii_m: positive radii")
 
@@ -105,6 +112,7 @@ class SurfaceMesh:
     vertices: np.ndarray
     triangles: np.ndarray
     colors: np.ndarray | None = None
+    filled_holes: int = 0  # small holes closed by `finish_mesh` (filled, not seen)
 
     def to_open3d(self) -> o3d.geometry.TriangleMesh:
         mesh = o3d.geometry.TriangleMesh(
@@ -141,14 +149,18 @@ class DepthView:
     index: int
 
 
-def _from_open3d(name: str, mesh: o3d.geometry.TriangleMesh) -> SurfaceMesh:
+def _from_open3d(name: str, mesh: o3d.geometry.TriangleMesh, filled_holes: int) -> SurfaceMesh:
     colors = (
         np.clip(np.round(np.asarray(mesh.vertex_colors) * 255), 0, 255).astype(np.uint8)
         if mesh.has_vertex_colors()
         else None
     )
     return SurfaceMesh(
-        name, np.asarray(mesh.vertices).copy(), np.asarray(mesh.triangles).copy(), colors
+        name,
+        np.asarray(mesh.vertices).copy(),
+        np.asarray(mesh.triangles).copy(),
+        colors,
+        filled_holes,
     )
 
 
@@ -183,6 +195,36 @@ def clean_mesh(mesh: o3d.geometry.TriangleMesh, min_component_fraction: float) -
     mesh.remove_unreferenced_vertices()
 
 
+def _boundary_loop_count(mesh: o3d.geometry.TriangleMesh) -> int:
+    tris = np.sort(np.asarray(mesh.triangles), axis=1)
+    edges = np.vstack([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [0, 2]]])
+    unique_edges, uses = np.unique(edges, axis=0, return_counts=True)
+    return len(_boundary_loops(np.asarray(mesh.vertices), unique_edges[uses == 1]))
+
+
+def finish_mesh(name: str, mesh: o3d.geometry.TriangleMesh, config: SurfaceConfig) -> SurfaceMesh:
+    """Clean the mesh, then close its holes smaller than fill_holes_max_radius_m (Open3D's
+    fill_holes, VTK's hole filler); the count of closed holes goes with the result."""
+    clean_mesh(mesh, config.min_component_fraction)
+    filled = 0
+    if config.fill_holes_max_radius_m > 0 and len(mesh.triangles):
+        before = _boundary_loop_count(mesh)
+        # fill_holes hands the mesh to VTK without copying: the tensor mesh must stay alive
+        # until the result is copied back (a temporary gave garbage vertices).
+        tensor_mesh = o3d.t.geometry.TriangleMesh.from_legacy(mesh)
+        closed = tensor_mesh.fill_holes(hole_size=config.fill_holes_max_radius_m).to_legacy()
+        del tensor_mesh
+        # VTK works in float32 and only adds triangles between existing boundary vertices:
+        # keep our float64 vertices (and colours) and take its triangles.
+        if len(closed.vertices) != len(mesh.vertices) or not np.allclose(
+            np.asarray(closed.vertices), np.asarray(mesh.vertices), rtol=0, atol=1e-6
+        ):
+            raise RuntimeError("fill_holes moved or added vertices")
+        mesh.triangles = closed.triangles
+        filled = before - _boundary_loop_count(mesh)
+    return _from_open3d(name, mesh, filled)
+
+
 def poisson_mesh(fused: FusedCloud, config: SurfaceConfig, **_: object) -> SurfaceMesh:
     if len(fused) < 100:
         raise ScannerError(f"Poisson: only {len(fused)} fused points, nothing to mesh")
@@ -201,8 +243,7 @@ def poisson_mesh(fused: FusedCloud, config: SurfaceConfig, **_: object) -> Surfa
     )
     drop = (density < np.quantile(density, config.poisson_density_quantile)) | ~np.isfinite(far)
     mesh.remove_vertices_by_mask(drop)
-    clean_mesh(mesh, config.min_component_fraction)
-    return _from_open3d("poisson", mesh)
+    return finish_mesh("poisson", mesh, config)
 
 
 def ball_pivoting_mesh(fused: FusedCloud, config: SurfaceConfig, **_: object) -> SurfaceMesh:
@@ -210,8 +251,7 @@ def ball_pivoting_mesh(fused: FusedCloud, config: SurfaceConfig, **_: object) ->
     mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(
         pc, o3d.utility.DoubleVector(list(config.ball_pivoting_radii_m))
     )
-    clean_mesh(mesh, config.min_component_fraction)
-    return _from_open3d("ball_pivoting", mesh)
+    return finish_mesh("ball_pivoting", mesh, config)
 
 
 def masked_depth(
@@ -244,7 +284,8 @@ def tsdf_mesh(
     remove_points: RemovePoints | None = None,
 ) -> SurfaceMesh:
     """Open3D tensor VoxelBlockGrid TSDF of the depth maps (the legacy ScalableTSDFVolume gave
-    0 triangles with float depth in metres, DESIGN.md); colours when the depth maps have them."""
+    0 triangles with float depth in metres in a prototype); colours when the depth maps have
+    them."""
     del fused  # TSDF works on the depth maps; the argument keeps one signature for all methods
     if not depth_views:
         raise ScannerError("TSDF: no depth maps given (the views carry no DepthImage)")
@@ -283,8 +324,7 @@ def tsdf_mesh(
     mesh = grid.extract_triangle_mesh(weight_threshold=threshold).to_legacy()
     if len(mesh.vertices):
         mesh.remove_vertices_by_mask(~roi.contains(np.asarray(mesh.vertices)))
-    clean_mesh(mesh, config.min_component_fraction)
-    return _from_open3d("tsdf", mesh)
+    return finish_mesh("tsdf", mesh, config)
 
 
 SURFACE_METHODS: dict[str, Callable[..., SurfaceMesh]] = {

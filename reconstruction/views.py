@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from reconstruction.errors import ScannerError
-from reconstruction.poses import check_pose
+from reconstruction.transforms import check_pose
 
 
 @dataclass(frozen=True, eq=False)

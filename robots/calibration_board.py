@@ -21,7 +21,7 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 from pydrake.multibody.tree import SpatialInertia
 
-from reconstruction.boards import BoardImage, BoardSpec, board_image
+from reconstruction.calibration.boards import BoardImage, BoardSpec, board_image
 from reconstruction.errors import ScannerError
 from robots.workcell import textured_instance
 

@@ -15,7 +15,9 @@ import numpy as np
 import yaml
 
 from reconstruction.camera_model import StereoCamera, stereo_camera_from_dict, stereo_camera_to_dict
+from reconstruction.checks import require_non_negative
 from reconstruction.errors import ScannerError
+from reconstruction.transforms import make_pose, rotation_about
 
 TRUTH_SCHEMA = "scanner.truth/1"
 
@@ -24,9 +26,9 @@ TRUTH_SCHEMA = "scanner.truth/1"
 class ErrorModel:
     """Seeded deviations of the true world from the nominal model (SI units).
 
-    Defaults: hand-eye mount error of 3 mm and 1 deg (DESIGN.md); encoder zero offsets with a
-    0.01 deg standard deviation per joint (about 0.1 mm at the RX60's reach); sensor noise of
-    2 grey levels (8-bit), typical of a CCD at good exposure.
+    Defaults: hand-eye mount error of 3 mm and 1 deg (a camera bracket mounted with care);
+    encoder zero offsets with a 0.01 deg standard deviation per joint (about 0.1 mm at the
+    RX60's reach); sensor noise of 2 grey levels (8-bit), typical of a CCD at good exposure.
     """
 
     seed: int = 0
@@ -36,15 +38,16 @@ class ErrorModel:
     image_noise_std: float = 2.0
 
     def __post_init__(self) -> None:
-        for name in (
-            "handeye_translation_m",
-            "handeye_rotation_rad",
-            "joint_offset_std_rad",
-            "image_noise_std",
-        ):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ScannerError(f"error_model.{name}: must be a non-negative number, got {v}")
+        require_non_negative(
+            "error_model",
+            self,
+            (
+                "handeye_translation_m",
+                "handeye_rotation_rad",
+                "joint_offset_std_rad",
+                "image_noise_std",
+            ),
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,20 +71,13 @@ def _random_unit(rng: np.random.Generator) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def axis_angle_matrix(axis: np.ndarray, angle_rad: float) -> np.ndarray:
-    k = np.asarray(axis, float) / np.linalg.norm(axis)
-    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(angle_rad) * Kx + (1 - math.cos(angle_rad)) * Kx @ Kx
-
-
 def sample_truth(
     error_model: ErrorModel, X_FC_nominal: np.ndarray, stereo: StereoCamera, X_WO: np.ndarray
 ) -> Truth:
     """True X_FC = nominal @ error, the error exactly of the configured size, random direction."""
     rng = np.random.default_rng(error_model.seed)
-    X_err = np.eye(4)
-    X_err[:3, :3] = axis_angle_matrix(_random_unit(rng), error_model.handeye_rotation_rad)
-    X_err[:3, 3] = error_model.handeye_translation_m * _random_unit(rng)
+    R_err = rotation_about(_random_unit(rng), error_model.handeye_rotation_rad)
+    X_err = make_pose(R_err, error_model.handeye_translation_m * _random_unit(rng))
     offsets = error_model.joint_offset_std_rad * rng.standard_normal(6)
     return Truth(
         np.asarray(X_FC_nominal, float) @ X_err,

@@ -215,6 +215,17 @@ class CaptureStore:
         return Capture(index, count, q, X_WF, stamp, images[0], images[1])
 
 
+def require_same_settings(where: Path, what: str, saved: dict, wanted: dict) -> None:
+    """Refuse to resume a run (`what`: scan, calibration) whose recorded settings differ from
+    the ones asked for now, naming the top-level keys that differ."""
+    differing = sorted(k for k in set(saved) | set(wanted) if saved.get(k) != wanted.get(k))
+    if differing:
+        raise ScannerError(
+            f"{where}: this {what} was started with a different configuration: different "
+            f"{', '.join(differing)}; resume with the same settings or start a new {what}"
+        )
+
+
 def _fsync_dir(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:

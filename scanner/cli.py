@@ -7,18 +7,10 @@ import sys
 from pathlib import Path
 
 from reconstruction.errors import ScannerError
+from scanner.arguments import positive_float
+from scanner.calibrate.arguments import add_calibrate_parser
 
 BUILTIN_HELP = "vase, bracket, pebble"
-
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return v
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -28,7 +20,14 @@ def build_parser() -> argparse.ArgumentParser:
         "Runs in a Drake simulation unless a hardware driver is configured.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_scan_parser(sub)
+    add_calibrate_parser(sub)
+    _add_reconstruct_parser(sub)
+    _add_preview_parser(sub)
+    return parser
 
+
+def _add_scan_parser(sub) -> None:
     scan = sub.add_parser(
         "scan",
         help="scan an object: plan viewpoints, move, capture stereo pairs, reconstruct",
@@ -43,14 +42,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     scan.add_argument(
         "--size",
-        type=_positive_float,
+        type=positive_float,
         default=None,
         help="largest extent of the object in metres (default 0.2)",
     )
     scan.add_argument("--views", type=int, default=None, help="number of views (default 24)")
     scan.add_argument(
         "--radius",
-        type=_positive_float,
+        type=positive_float,
         default=None,
         help="distance of the rig from the scan centre in metres (default 0.5)",
     )
@@ -92,16 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="print the effective configuration (defaults, --config, flags) as YAML and exit",
     )
 
-    calibrate = sub.add_parser(
-        "calibrate",
-        help="calibrate the stereo camera and the hand-eye transform X_FC",
-        description="Move the camera around a calibration board, calibrate the stereo pair and "
-        "the hand-eye transform, and write a calibration file that scan/reconstruct use "
-        "(DIR/results/calibration.yaml). --offline DIR calibrates from recorded images and "
-        "robot poses instead; --eye-to-hand calibrates a static camera against the robot.",
-    )
-    _add_calibrate_arguments(calibrate)
 
+def _add_reconstruct_parser(sub) -> None:
     reconstruct = sub.add_parser(
         "reconstruct",
         help="re-run the reconstruction offline on a saved scan directory",
@@ -139,6 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="mesh file formats, comma separated from ply,obj,stl (default ply)",
     )
 
+
+def _add_preview_parser(sub) -> None:
     preview = sub.add_parser(
         "preview",
         help="render the simulated work cell and one stereo pair to PNG files",
@@ -150,102 +143,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     preview.add_argument("--out", type=Path, default=Path("out/preview"), help="output folder")
     preview.add_argument("--seed", type=int, default=0, help="seed of the simulated error model")
-    return parser
-
-
-def _add_calibrate_arguments(calibrate: argparse.ArgumentParser) -> None:
-    # Names are validated by the calibration code (one-line errors listing the valid ones), so
-    # no argparse `choices` here.
-    calibrate.add_argument("--out", type=Path, default=None, help="calibration directory")
-    calibrate.add_argument("--config", type=Path, default=None, help="calibration YAML file")
-    calibrate.add_argument("--force", action="store_true", help="replace an existing --out")
-    calibrate.add_argument(
-        "--resume",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="finish an interrupted eye-in-hand run: capture the stations it lacks, then solve",
-    )
-    calibrate.add_argument("--seed", type=int, default=None, help="seed of the simulated errors")
-    calibrate.add_argument(
-        "--stations", type=int, default=None, help="number of board views to take (default 20)"
-    )
-    calibrate.add_argument(
-        "--driver",
-        default=None,
-        metavar="MODULE:FACTORY",
-        help="eye-in-hand on real hardware (see `scan --driver`); the board stands where the "
-        "configuration's placement says",
-    )
-    board = calibrate.add_argument_group("board (simulation default: chessboard 10x7, 0.02 m)")
-    board.add_argument("--board", default=None, help="charuco, chessboard or circles_asymmetric")
-    board.add_argument(
-        "--board-size",
-        default=None,
-        metavar="COLSxROWS",
-        help="squares (chessboard, charuco) or circles (circle grid) across x down, e.g. 7x11",
-    )
-    board.add_argument(
-        "--board-spacing",
-        type=_positive_float,
-        default=None,
-        metavar="M",
-        help="square size, or circle distance along a row, in metres",
-    )
-    board.add_argument(
-        "--marker-size",
-        type=_positive_float,
-        default=None,
-        metavar="M",
-        help="ChArUco marker size in metres",
-    )
-    board.add_argument("--dictionary", default=None, help="ArUco dictionary, e.g. DICT_5X5_100")
-    board.add_argument(
-        "--inverted", action="store_true", help="white pattern on black (e.g. white dots)"
-    )
-    offline = calibrate.add_argument_group("offline calibration from recorded data")
-    offline.add_argument(
-        "--offline",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="a calibration directory made by this tool, or images with robot pose files "
-        "(same name, .txt) or left/ and right/ image folders",
-    )
-    offline.add_argument(
-        "--pose-convention",
-        default=None,
-        help="robot pose preset: open3dv, yaskawa, fanuc, kuka, staubli, abb, ur, matrix_m, "
-        "matrix_mm",
-    )
-    offline.add_argument(
-        "--pose-layout",
-        default=None,
-        help="matrix, xyz_euler, euler_xyz, xyz_quat, xyz_wxyz or xyz_rotvec",
-    )
-    offline.add_argument(
-        "--euler", default=None, help="Euler sequence: xyz (extrinsic) ... XYZ (intrinsic)"
-    )
-    offline.add_argument("--length-unit", default=None, help="m or mm")
-    offline.add_argument("--angle-unit", default=None, help="deg or rad")
-    offline.add_argument(
-        "--inverse-poses", action="store_true", help="the files hold the base in the flange"
-    )
-    offline.add_argument(
-        "--pose-file", type=Path, default=None, help="one pose per line, in image name order"
-    )
-    offline.add_argument(
-        "--intrinsics",
-        type=Path,
-        default=None,
-        help="known intrinsics: calibration/stereo YAML, or text (K row by row, k1 k2 p1 p2 k3)",
-    )
-    e2h = calibrate.add_argument_group("eye-to-hand (static camera, marker on the flange)")
-    e2h.add_argument("--eye-to-hand", action="store_true", help="calibrate a static camera")
-    e2h.add_argument("--held-out", type=int, default=None, help="random test points (default 100)")
-    e2h.add_argument(
-        "--grid-spacing", type=_positive_float, default=None, metavar="M", help="grid spacing (m)"
-    )
 
 
 def _scan(args: argparse.Namespace) -> int:
@@ -301,7 +198,7 @@ def _scan(args: argparse.Namespace) -> int:
 def _reconstruct(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from reconstruction.calibration_file import load_calibration
+    from reconstruction.calibration.file import load_calibration
     from scanner.captures import CaptureStore
     from scanner.config import scan_config_from_dict
     from scanner.reconstruct import (
@@ -358,7 +255,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.command == "scan":
         return _scan(args)
     if args.command == "calibrate":
-        from scanner.calibrate_cli import run_calibrate_command
+        from scanner.calibrate.cli import run_calibrate_command
 
         return run_calibrate_command(args)
     if args.command == "preview":

@@ -11,10 +11,13 @@ from pathlib import Path
 
 from planners.planner import PlannerConfig
 from reconstruction.camera_model import StereoCamera, default_stereo_camera
+from reconstruction.checks import require_count, require_non_negative, require_positive
 from reconstruction.errors import ScannerError
+from reconstruction.pipeline import ReconstructionConfig
+from reconstruction.stereo.params import StereoParams
+from reconstruction.surfaces import MESH_SUFFIXES
 from robots.truth import ErrorModel
 from robots.workcell import WorkcellConfig
-from scanner.reconstruct import ProcessingConfig
 from scanner.typed_yaml import from_dict, load_yaml_file, to_dict
 from scanner.viewpoints import ViewpointConfig
 
@@ -31,10 +34,8 @@ class CameraConfig:
     distortion: tuple[float, float, float, float, float] = (-0.42, 0.19, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
-        if self.width_px < 16 or self.height_px < 16:
-            raise ScannerError("camera: width_px and height_px must be at least 16")
-        if not (self.focal_px > 0 and self.baseline_m > 0):
-            raise ScannerError("camera: focal_px and baseline_m must be positive")
+        require_count("camera", self, ("width_px", "height_px"), minimum=16)
+        require_positive("camera", self, ("focal_px", "baseline_m"))
 
     def stereo_camera(self) -> StereoCamera:
         return default_stereo_camera(
@@ -44,15 +45,40 @@ class CameraConfig:
 
 @dataclass(frozen=True)
 class MachineConfig:
-    """Decision-maker retries and settling."""
+    """Decision-maker retries and settling: the arm counts as at rest when every joint is
+    within settle_tolerance_rad of the goal, polled until settle_timeout_s."""
 
     capture_retries: int = 2
     settle_tolerance_rad: float = 1e-3
     settle_timeout_s: float = 5.0
 
     def __post_init__(self) -> None:
-        if self.capture_retries < 0:
-            raise ScannerError("machine.capture_retries: must be >= 0")
+        require_count("machine", self, ("capture_retries",), minimum=0)
+        require_positive("machine", self, ("settle_tolerance_rad", "settle_timeout_s"))
+
+
+@dataclass(frozen=True)
+class ProcessingConfig:
+    """How captures become a model (`processing:` in a scan config, or `--config` offline)."""
+
+    stereo: StereoParams = field(default_factory=StereoParams)
+    reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
+    # Points closer than this to the robot, tool, rod or cell primitives are removed.
+    remove_margin_m: float = 0.01
+    # The surface whose metrics are the report's headline keys.
+    primary_surface: str = "poisson"
+    mesh_formats: tuple[str, ...] = (".ply",)
+    # Surface samples for the metrics (area-uniform on the truth and on each result).
+    metric_samples: int = 200_000
+
+    def __post_init__(self) -> None:
+        bad = [f for f in self.mesh_formats if f not in MESH_SUFFIXES]
+        if bad:
+            raise ScannerError(
+                f"processing.mesh_formats: {bad} not in {', '.join(MESH_SUFFIXES)}"
+            )
+        require_non_negative("processing", self, ("remove_margin_m",))
+        require_count("processing", self, ("metric_samples",), minimum=1000)
 
 
 @dataclass(frozen=True)

@@ -21,8 +21,10 @@ from typing import Protocol
 import numpy as np
 
 from planners.planner import PlanFailure
+from reconstruction.stage_timer import StageTimer
 from robots.drivers import CaptureError, RobotDriver, StereoCameraDriver
 from scanner.captures import Capture, CaptureStore
+from scanner.config import MachineConfig
 from scanner.viewpoints import PlannedView, ViewOption
 
 log = logging.getLogger("scanner.decision")
@@ -86,14 +88,6 @@ class FixedViewList:
 
 
 @dataclass
-class MachineSettings:
-    capture_retries: int = 2
-    settle_tolerance_rad: float = 1e-3
-    settle_timeout_s: float = 5.0
-    settle_poll_s: float = 0.05
-
-
-@dataclass
 class RunSummary:
     state: State
     outcomes: list[ViewOutcome]
@@ -120,19 +114,21 @@ class DecisionMaker:
         source: ViewSource,
         pose_count: int,
         X_WF: Callable[[np.ndarray], np.ndarray],
-        settings: MachineSettings | None = None,
+        settings: MachineConfig | None = None,
         process: Callable[[Capture], None] | None = None,
         on_view_done: Callable[[ViewOutcome], None] | None = None,
+        settle_poll_s: float = 0.05,
     ) -> None:
         self.planner, self.robot, self.camera, self.store = planner, robot, camera, store
         self.source, self.pose_count = source, pose_count
-        self.settings = settings or MachineSettings()
+        self.settings = settings or MachineConfig()
+        self.settle_poll_s = settle_poll_s
         self._fk = X_WF
         self.process, self.on_view_done = process, on_view_done
         self.abort_requested = False
         self.state = State.START
         self._transitions: list[tuple[str, str]] = []
-        self._stage_s: dict[str, float] = {}
+        self._timer = StageTimer()
         self._motion_s = 0.0
 
     def request_abort(self) -> None:
@@ -143,13 +139,6 @@ class DecisionMaker:
         log.info("%s -> %s%s", self.state.value, state.value, f" ({why})" if why else "")
         self._transitions.append((self.state.value, state.value))
         self.state = state
-
-    def _timed(self, stage: str, fn, *args):
-        t0 = time.perf_counter()
-        try:
-            return fn(*args)
-        finally:
-            self._stage_s[stage] = self._stage_s.get(stage, 0.0) + time.perf_counter() - t0
 
     def run(self) -> RunSummary:
         outcomes: list[ViewOutcome] = []
@@ -170,7 +159,7 @@ class DecisionMaker:
             if self.state is not State.CHOOSE_VIEW:
                 self._go(State.CHOOSE_VIEW)
         return RunSummary(
-            self.state, outcomes, self._motion_s, dict(self._stage_s), list(self._transitions)
+            self.state, outcomes, self._motion_s, dict(self._timer.seconds), list(self._transitions)
         )
 
     def _skip(self, view: PlannedView, reason: str, attempts: int) -> ViewOutcome:
@@ -183,15 +172,15 @@ class DecisionMaker:
         for attempt, option in enumerate(self.source.options_in_order(view), start=1):
             self._go(State.PLAN, f"view {view.index} option {attempt}")
             q_now = self.robot.joint_positions()
-            result = self._timed("plan", self.planner.plan, q_now, option.q)
+            result = self._timer.call("plan", self.planner.plan, q_now, option.q)
             if isinstance(result, PlanFailure):
                 failures.append(f"{result.reason}: {result.detail}")
                 continue
             self._go(State.EXECUTE)
-            self._timed("execute", self.robot.execute, result.to_joint_trajectory())
+            self._timer.call("execute", self.robot.execute, result.to_joint_trajectory())
             self._motion_s += result.duration_s
             self._go(State.SETTLE)
-            if not self._timed("settle", self._settled, option.q):
+            if not self._timer.call("settle", self._settled, option.q):
                 return self._skip(view, "arm did not settle at the goal", attempt)
             return self._capture(view, attempt, result.duration_s)
         return self._skip(
@@ -206,13 +195,13 @@ class DecisionMaker:
                 return True
             if time.monotonic() > deadline:
                 return False
-            time.sleep(s.settle_poll_s)
+            time.sleep(self.settle_poll_s)
 
     def _capture(self, view: PlannedView, attempts: int, motion_s: float) -> ViewOutcome:
         for k in range(self.settings.capture_retries + 1):
             self._go(State.CAPTURE, f"view {view.index} try {k + 1}")
             try:
-                pair = self._timed("capture", self.camera.capture)
+                pair = self._timer.call("capture", self.camera.capture)
             except CaptureError as e:
                 log.warning("capture of view %d failed: %s", view.index, e)
                 continue
@@ -220,10 +209,10 @@ class DecisionMaker:
             capture = Capture(
                 view.index, self.pose_count, q, self._fk(q), pair.stamp_s, pair.left, pair.right
             )
-            self._timed("store", self.store.write_capture, capture)
+            self._timer.call("store", self.store.write_capture, capture)
             if self.process is not None:
                 self._go(State.PROCESS)
-                self._timed("process", self.process, capture)
+                self._timer.call("process", self.process, capture)
             return ViewOutcome(view.index, True, "", attempts, motion_s)
         return self._skip(
             view, f"capture failed {self.settings.capture_retries + 1} times", attempts

@@ -15,6 +15,7 @@ from robots.sim_camera import render_overview
 from robots.simulation import HOME_Q, create_simulation
 from robots.truth import ErrorModel
 from robots.workcell import WorkcellConfig
+from scanner.sampling import fibonacci_directions
 
 
 @dataclass(frozen=True)
@@ -31,13 +32,7 @@ def first_reachable_view(sim, radius_m: float) -> tuple[Viewpoint, np.ndarray]:
     X_FC = camera_tool.nominal_X_FC(sim.truth.stereo.baseline_m)
     X_MC = rig_centre_offset(sim.truth.stereo.X_CR)
     preferred = np.array([-1.0, 0.0, -0.3]) / np.linalg.norm([-1.0, 0.0, -0.3])
-    n = 400
-    k = np.arange(n) + 0.5
-    z = 1 - 2 * k / n
-    phi = np.pi * (1 + 5**0.5) * k
-    directions = np.stack(
-        [np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], 1
-    )
+    directions = fibonacci_directions(400)
     for d in directions[np.argsort(-directions @ preferred)]:
         vp = Viewpoint(tuple(c + radius_m * d), tuple(c), 0.0)
         solutions = ik_camera(sim.robot.robot, camera_pose(vp, X_MC), X_FC, HOME_Q)

@@ -8,7 +8,7 @@ results folder (captures are never modified):
                 ICP + pose graph, hand-eye correction, fused cloud, Poisson / TSDF meshes
     evaluate    when truth.yaml is present: surface metrics and hand-eye error vs the truth
     write       fused_cloud.ply, mesh_*.ply (+ .obj/.stl on request), reconstruction.yaml,
-                report.json (merged with the scan's), summary.md, plots
+                plots; then report.json (merged with the scan's) and summary.md
 """
 
 from __future__ import annotations
@@ -17,53 +17,29 @@ import json
 import logging
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from reconstruction.camera_model import stereo_camera_from_dict
+from reconstruction.camera_model import StereoCamera
 from reconstruction.errors import ScannerError
 from reconstruction.metrics import TriangleSurface, evaluate_surface, handeye_error
-from reconstruction.pipeline import (
-    ReconstructionConfig,
-    ReconstructionResult,
-    reconstruct_views,
-    save_outputs,
-    summary,
-)
-from reconstruction.rectification import Rectification, compute_rectification
-from reconstruction.stereo import stereo_cloud
-from reconstruction.stereo_params import StereoParams, object_depth_window
-from reconstruction.views import DepthImage, ViewCloud
-from scanner.captures import CaptureStore, atomic_write_text
+from reconstruction.outputs import save_outputs, summary
+from reconstruction.pipeline import ReconstructionConfig, ReconstructionResult, reconstruct_views
+from reconstruction.stage_timer import StageTimer
+from reconstruction.stereo.cloud import depth_image, view_cloud
+from reconstruction.stereo.params import StereoParams
+from reconstruction.stereo.rectification import Rectification, compute_rectification
+from reconstruction.views import ViewCloud
+from robots.workcell import keep_out_radius_m
+from scanner.captures import atomic_write_text
+from scanner.config import ProcessingConfig, ScanConfig
+from scanner.manifest import SavedScan, open_scan
 from scanner.typed_yaml import load_yaml_file, to_dict
 
 log = logging.getLogger("scanner.reconstruct")
-MESH_FORMATS = (".ply", ".obj", ".stl")
-
-
-@dataclass(frozen=True)
-class ProcessingConfig:
-    """How captures become a model (`processing:` in a scan config, or `--config` offline)."""
-
-    stereo: StereoParams = field(default_factory=StereoParams)
-    reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
-    # Points closer than this to the robot, tool, rod or cell primitives are removed.
-    remove_margin_m: float = 0.01
-    # The surface whose metrics are the report's headline keys.
-    primary_surface: str = "poisson"
-    mesh_formats: tuple[str, ...] = (".ply",)
-    # Surface samples for the metrics (area-uniform on the truth and on each result).
-    metric_samples: int = 200_000
-
-    def __post_init__(self) -> None:
-        bad = [f for f in self.mesh_formats if f not in MESH_FORMATS]
-        if bad:
-            raise ScannerError(f"processing.mesh_formats: {bad} not in {', '.join(MESH_FORMATS)}")
-        if not self.remove_margin_m >= 0:
-            raise ScannerError("processing.remove_margin_m: must be >= 0")
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,54 +49,44 @@ class ReconstructRun:
     results_dir: Path
 
 
-def _depth_view(rect: Rectification, cloud) -> DepthImage:
-    """The cloud's rectified depth as an image on the rectified left grid (for TSDF)."""
-    w, h = rect.image_size
-    depth = np.zeros((h, w), np.float32)
-    p_rect = cloud.points_C @ rect.R1.T
-    u, v = cloud.pixels_rect[:, 0].astype(int), cloud.pixels_rect[:, 1].astype(int)
-    depth[v, u] = p_rect[:, 2]
-    X_CD = np.eye(4)
-    X_CD[:3, :3] = rect.R1.T
-    return DepthImage(depth, rect.P1[:3, :3], X_CD)
+@dataclass(frozen=True, eq=False)
+class CaptureViews:
+    """The stereo stage's output: a view per readable capture, the captures skipped (index and
+    reason), and the measured joint positions of each view (for the robot/cell point filter)."""
 
-
-def _scan_centre(manifest: dict) -> np.ndarray:
-    config = manifest["config"]
-    return np.array(config["views"]["center_m"] or config["cell"]["object_center_m"], float)
+    views: list[ViewCloud]
+    skipped: list[dict]
+    joints: dict[int, np.ndarray]
 
 
 def capture_views(
-    store: CaptureStore, manifest: dict, rect: Rectification, X_FC: np.ndarray, params: StereoParams
-) -> tuple[list[ViewCloud], list[dict], dict]:
+    scan: SavedScan, rect: Rectification, X_FC: np.ndarray, params: StereoParams
+) -> CaptureViews:
     """Stereo clouds of every readable capture; damaged captures are reported and skipped."""
-    centre = _scan_centre(manifest)
-    radius = float(manifest["config"]["cell"]["object_size_m"]) * math.sqrt(3) / 2
-    views, skipped, joints = [], [], {}
-    for index in store.captured_indices():
+    centre = np.array(scan.config.scan_center_m, float)
+    radius = keep_out_radius_m(scan.config.cell)
+    out = CaptureViews([], [], {})
+    for index in scan.store.captured_indices():
         try:
-            capture = store.read_capture(index)
+            capture = scan.store.read_capture(index)
         except ScannerError as e:
             log.warning("capture %d skipped: %s", index, e)
-            skipped.append({"index": index, "reason": str(e)})
+            out.skipped.append({"index": index, "reason": str(e)})
             continue
         if capture.left.shape[1::-1] != rect.image_size:
             reason = f"image size {capture.left.shape[1::-1]} differs from the camera model's"
-            skipped.append({"index": index, "reason": reason})
+            out.skipped.append({"index": index, "reason": reason})
             continue
         X_WC = capture.X_WF @ X_FC
-        distance = float(np.linalg.norm(centre - X_WC[:3, 3]))
-        z_min, z_max = object_depth_window(distance, radius)
-        cloud = stereo_cloud(rect, capture.left, capture.right, z_min, z_max, params)
-        views.append(
-            ViewCloud(index, cloud.points_C, cloud.colors, capture.X_WF, _depth_view(rect, cloud))
-        )
-        joints[index] = capture.q_rad
-    return views, skipped, joints
+        cloud = view_cloud(rect, capture.left, capture.right, X_WC, centre, radius, params)
+        depth = depth_image(rect, cloud)
+        out.views.append(ViewCloud(index, cloud.points_C, cloud.colors, capture.X_WF, depth))
+        out.joints[index] = capture.q_rad
+    return out
 
 
 def _truth(scan_dir: Path):
-    """(true X_FC, true mesh surface, true camera centres function) or None without truth."""
+    """(the simulator's Truth record, the true surface in W), or None without truth.yaml."""
     path = scan_dir / "truth.yaml"
     if not path.is_file():
         return None
@@ -143,13 +109,13 @@ def _true_camera_centres(truth, joints: dict) -> list[np.ndarray]:
     return [(kin.X_WF(q + truth.joint_offsets_rad) @ truth.X_FC)[:3, 3] for q in joints.values()]
 
 
-def _geometry_filter(manifest: dict, X_FC: np.ndarray, stereo, joints: dict, margin_m: float):
+def _geometry_filter(
+    config: ScanConfig, X_FC: np.ndarray, stereo: StereoCamera, joints: dict, margin_m: float
+):
     from robots.point_filter import make_geometry_filter
     from robots.workcell import build_workcell
-    from scanner.config import scan_config_from_dict
 
-    cell = scan_config_from_dict(manifest["config"], "scan.yaml:config").cell
-    keep = make_geometry_filter(build_workcell(cell, None, X_FC, stereo.X_CR), margin_m)
+    keep = make_geometry_filter(build_workcell(config.cell, None, X_FC, stereo.X_CR), margin_m)
     return lambda points_W, index: keep(points_W, joints[index])
 
 
@@ -186,91 +152,102 @@ def free_results_dir(scan_dir: Path) -> Path:
     return candidate
 
 
-def run_reconstruct(
-    scan_dir: Path,
-    processing: ProcessingConfig | None = None,
-    results_dir: Path | None = None,
-    X_FC: np.ndarray | None = None,
-    stereo=None,
-) -> ReconstructRun:
-    """Reconstruct a saved scan. Defaults: the scan's own processing settings, camera model and
-    X_FC (from its manifest); results in SCAN_DIR/results."""
-    t0 = time.perf_counter()
-    stage_s: dict[str, float] = {}
-    store = CaptureStore.open(scan_dir)
-    manifest = store.read_manifest()
-    if "config" not in manifest or "viewpoints" not in manifest:
-        raise ScannerError(f"{store.manifest_path}: not a scan manifest (no config/viewpoints)")
-    if processing is None:
-        from scanner.config import scan_config_from_dict
+def _with_roi_centre(config: ReconstructionConfig, centre: np.ndarray) -> ReconstructionConfig:
+    """The region of interest around the scan centre unless the configuration placed it."""
+    if config.filter.roi.center_m is not None:
+        return config
+    roi = replace(config.filter.roi, center_m=tuple(float(c) for c in centre))
+    return replace(config, filter=replace(config.filter, roi=roi))
 
-        processing = scan_config_from_dict(manifest["config"], "scan.yaml:config").processing
-    stereo = stereo or stereo_camera_from_dict(manifest["camera"], f"{store.manifest_path}:camera")
-    X_FC = np.array(manifest["X_FC_nominal"], float) if X_FC is None else X_FC
-    config = processing.reconstruction
-    centre = _scan_centre(manifest)
-    if config.filter.roi.center_m is None:
-        roi = replace(config.filter.roi, center_m=tuple(float(c) for c in centre))
-        config = replace(config, filter=replace(config.filter, roi=roi))
 
-    t = time.perf_counter()
-    rect = compute_rectification(stereo)
-    views, skipped, joints = capture_views(store, manifest, rect, X_FC, processing.stereo)
-    stage_s["stereo"] = time.perf_counter() - t
-    if len(views) < config.min_views:
+def _metrics(result, truth, joints: dict, processing: ProcessingConfig) -> dict:
+    """The report's accuracy keys: the primary surface's metrics first, then all of them."""
+    centres = _true_camera_centres(truth[0], joints)
+    metrics = evaluate(result, truth[0], truth[1], centres, processing.metric_samples)
+    primary = metrics["surfaces"].get(processing.primary_surface)
+    if primary is None:
         raise ScannerError(
-            f"{scan_dir}: {len(views)} usable captures, the reconstruction needs at least "
-            f"{config.min_views}"
+            f"processing.primary_surface: '{processing.primary_surface}' was not built "
+            f"(built: {', '.join(metrics['surfaces'])})"
         )
-    remove = _geometry_filter(manifest, X_FC, stereo, joints, processing.remove_margin_m)
-    t = time.perf_counter()
-    result = reconstruct_views(views, X_FC, config, remove)
-    stage_s["reconstruct"] = time.perf_counter() - t
+    return {**primary, "primary_surface": processing.primary_surface, **metrics}
 
-    report: dict = {"captures_used": len(views), "captures_skipped": skipped}
-    truth = _truth(Path(scan_dir))
-    if truth is not None:
-        t = time.perf_counter()
-        centres = _true_camera_centres(truth[0], joints)
-        metrics = evaluate(result, truth[0], truth[1], centres, processing.metric_samples)
-        primary = metrics["surfaces"].get(processing.primary_surface)
-        if primary is None:
-            raise ScannerError(
-                f"processing.primary_surface: '{processing.primary_surface}' was not built "
-                f"(built: {', '.join(metrics['surfaces'])})"
-            )
-        report.update(primary)
-        report["primary_surface"] = processing.primary_surface
-        report.update(metrics)
-        stage_s["evaluate"] = time.perf_counter() - t
 
-    t = time.perf_counter()
-    out = Path(results_dir) if results_dir else store.results_dir
+def _write_results(result, processing: ProcessingConfig, truth, out: Path) -> dict:
+    """Meshes, the fused cloud, reconstruction.yaml and the plots; their report keys."""
+    from scanner.report import write_plots
+
     paths = save_outputs(result, out, processing.mesh_formats)
     details = summary(result)
     atomic_write_text(
         out / "reconstruction.yaml",
         yaml.safe_dump({"processing": to_dict(processing), **details}, sort_keys=False),
     )
-    report["X_FC_estimate"] = result.X_FC.tolist()
-    report["X_FC_change_mm"] = 1e3 * details["X_FC_change_translation_m"]
-    report["X_FC_change_deg"] = math.degrees(details["X_FC_change_rotation_rad"])
-    report["outputs"] = {k: str(p.relative_to(out)) for k, p in paths.items()}
-    report["reconstruction_stage_s"] = {**stage_s, **result.timings_s}
-    from scanner.report import write_plots, write_summary
+    return {
+        "X_FC_estimate": result.X_FC.tolist(),
+        "X_FC_change_mm": 1e3 * details["X_FC_change_translation_m"],
+        "X_FC_change_deg": math.degrees(details["X_FC_change_rotation_rad"]),
+        "outputs": {k: str(p.relative_to(out)) for k, p in paths.items()},
+        "plots": write_plots(
+            result, out, truth[1] if truth else None, processing.primary_surface
+        ),
+    }
 
-    report["plots"] = write_plots(
-        result, report, out, truth[1] if truth else None, processing.primary_surface
+
+def run_reconstruct(
+    scan: Path | SavedScan,
+    processing: ProcessingConfig | None = None,
+    results_dir: Path | None = None,
+    X_FC: np.ndarray | None = None,
+    stereo: StereoCamera | None = None,
+) -> ReconstructRun:
+    """Reconstruct a saved scan (a directory, or one already opened). Defaults: the scan's own
+    processing settings, camera model and X_FC (from its manifest); results in SCAN_DIR/results."""
+    t0 = time.perf_counter()
+    scan = scan if isinstance(scan, SavedScan) else open_scan(scan)
+    processing = processing or scan.config.processing
+    stereo = stereo or scan.stereo
+    X_FC = scan.X_FC_nominal if X_FC is None else X_FC
+    config = _with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
+    timer = StageTimer()
+
+    with timer("stereo"):
+        captured = capture_views(scan, compute_rectification(stereo), X_FC, processing.stereo)
+    if len(captured.views) < config.min_views:
+        raise ScannerError(
+            f"{scan.root}: {len(captured.views)} usable captures, the reconstruction needs at "
+            f"least {config.min_views}"
+        )
+    remove = _geometry_filter(
+        scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m
     )
-    stage_s["write"] = time.perf_counter() - t
+    with timer("reconstruct"):
+        result = reconstruct_views(captured.views, X_FC, config, remove)
+
+    report: dict = {"captures_used": len(captured.views), "captures_skipped": captured.skipped}
+    truth = _truth(scan.root)
+    if truth is not None:
+        with timer("evaluate"):
+            report.update(_metrics(result, truth, captured.joints, processing))
+    out = Path(results_dir) if results_dir else scan.store.results_dir
+    with timer("write"):
+        report.update(_write_results(result, processing, truth, out))
+    report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
     report["reconstruct_s"] = time.perf_counter() - t0
+    return ReconstructRun(result, _merge_report(out, report), out)
+
+
+def _merge_report(out: Path, report: dict) -> dict:
+    """report.json updated with `report` (a scan's own report keeps its keys), and summary.md."""
+    from scanner.report import write_summary
+
     merged = {}
     if (out / "report.json").is_file():
         merged = json.loads((out / "report.json").read_text())
     merged.update(report)
     atomic_write_text(out / "report.json", json.dumps(merged, indent=2) + "\n")
     write_summary(merged, out)
-    return ReconstructRun(result, merged, out)
+    return merged
 
 
 def load_processing_config(path: Path) -> ProcessingConfig:

@@ -17,7 +17,7 @@ import numpy as np  # noqa: E402
 
 from reconstruction.metrics import TriangleSurface, distances_to_mesh  # noqa: E402
 from reconstruction.pipeline import ReconstructionResult  # noqa: E402
-from reconstruction.poses import pose_difference  # noqa: E402
+from reconstruction.transforms import pose_difference  # noqa: E402
 
 
 def _residual_plot(result: ReconstructionResult, path: Path) -> None:
@@ -76,7 +76,6 @@ def _error_map(vertices: np.ndarray, error_mm: np.ndarray, path: Path, title: st
 
 def write_plots(
     result: ReconstructionResult,
-    report: dict,
     out: Path,
     truth: TriangleSurface | None = None,
     primary: str = "poisson",

@@ -22,6 +22,7 @@ import numpy as np
 
 from planners.ik import Viewpoint
 from reconstruction.errors import ScannerError
+from scanner.sampling import farthest_point_sample, fibonacci_directions
 
 DISTRIBUTIONS = ("reachable", "sphere")
 
@@ -90,15 +91,6 @@ class ViewPlan:
     reachable_fraction: float
 
 
-def fibonacci_directions(n: int, z_min: float = -1.0, z_max: float = 1.0) -> np.ndarray:
-    """(n, 3) unit vectors evenly spread over the sphere zone z_min <= z <= z_max (equal area)."""
-    k = np.arange(n) + 0.5
-    z = z_max - (z_max - z_min) * k / n
-    phi = math.pi * (1 + math.sqrt(5)) * k
-    r = np.sqrt(np.clip(1 - z * z, 0, None))
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
-
 def _band(config: ViewpointConfig, n: int) -> np.ndarray:
     return fibonacci_directions(
         n, math.sin(config.elevation_min_rad), math.sin(config.elevation_max_rad)
@@ -144,22 +136,14 @@ def _options(
     return options[: config.options_per_view]
 
 
-def farthest_point_sample(points: np.ndarray, n: int, first: int) -> list[int]:
-    chosen = [first]
-    d = np.linalg.norm(points - points[first], axis=1)
-    while len(chosen) < min(n, len(points)):
-        nxt = int(np.argmax(d))
-        chosen.append(nxt)
-        d = np.minimum(d, np.linalg.norm(points - points[nxt], axis=1))
-    return chosen
-
-
 def spread_evenly(points: np.ndarray, n: int, iterations: int) -> list[int]:
     """n indices of unit vectors `points` spread evenly: FPS, then Lloyd steps snapped to points."""
     if n >= len(points):
         return list(range(len(points)))
     mean = points.mean(axis=0)
-    chosen = farthest_point_sample(points, n, int(np.argmax(points @ mean)))
+    chosen = farthest_point_sample(
+        n, int(np.argmax(points @ mean)), lambda i: np.linalg.norm(points - points[i], axis=1)
+    )
     for _ in range(iterations):
         owner = np.argmax(points @ points[chosen].T, axis=1)
         new = []

@@ -20,9 +20,9 @@ import os
 import tempfile
 from pathlib import Path
 
-from scanner.calibrate import CalibrateConfig
-from scanner.calibrate_eye_to_hand import run_eye_to_hand
-from scanner.calibrate_sim import run_eye_in_hand
+from scanner.calibrate.config import CalibrateConfig
+from scanner.calibrate.eye_in_hand import run_eye_in_hand
+from scanner.calibrate.eye_to_hand import run_eye_to_hand
 
 
 def main() -> None:

@@ -38,17 +38,10 @@ from robots import camera_tool
 from robots.kinematics import Kinematics
 from robots.simulation import HOME_Q
 from robots.workcell import WorkcellConfig, build_workcell
+from scanner.sampling import fibonacci_directions
 
 RADIUS_M = 0.5
 ROLLS_RAD = (-math.pi / 6, 0.0, math.pi / 6)
-
-
-def fibonacci_directions(n: int) -> np.ndarray:
-    k = np.arange(n) + 0.5
-    z = 1 - 2 * k / n
-    phi = np.pi * (1 + 5**0.5) * k
-    r = np.sqrt(1 - z * z)
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
 def reachable_views(planner: Planner, directions: np.ndarray):

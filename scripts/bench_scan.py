@@ -13,17 +13,17 @@ import tempfile
 from pathlib import Path
 
 from planners.planner import Trajectory
-from scanner.captures import CaptureStore
 from scanner.config import ScanConfig, with_overrides
-from scanner.scan import _setup_world, _views_from_manifest, run_scan
+from scanner.manifest import open_scan
+from scanner.scan import run_scan
+from scanner.world import setup_world
 
 
 def naive_order_motion_s(config: ScanConfig, scan_dir: Path) -> float:
     """Sum of planned trajectory durations visiting the scan's views in generation order."""
-    world = _setup_world(config)
+    world = setup_world(config)
     planner = world.planner
-    store = CaptureStore.open(scan_dir)
-    views = _views_from_manifest(store.read_manifest()["viewpoints"], "manifest")
+    views = open_scan(scan_dir).views
     q = world.robot.joint_positions()
     total = 0.0
     for view in sorted(views, key=lambda v: v.index):

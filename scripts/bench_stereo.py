@@ -21,14 +21,10 @@ import time
 import numpy as np
 
 from planners.ik import Viewpoint, camera_pose, ik_camera, rig_centre_offset
-from reconstruction.rectification import compute_rectification
-from reconstruction.stereo import (
-    StereoParams,
-    disparity_window,
-    object_depth_window,
-    stereo_cloud,
-)
-from reconstruction.stereo_metrics import stereo_accuracy
+from reconstruction.stereo.cloud import stereo_cloud
+from reconstruction.stereo.metrics import stereo_accuracy
+from reconstruction.stereo.params import StereoParams, disparity_window, object_depth_window
+from reconstruction.stereo.rectification import compute_rectification
 from robots import camera_tool
 from robots.simulation import HOME_Q, create_simulation
 from robots.truth import ErrorModel

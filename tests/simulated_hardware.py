@@ -2,7 +2,7 @@
 `--driver tests.simulated_hardware:connect` exactly like a real robot's driver would be."""
 
 from robots.drivers import Hardware
-from scanner.scan import simulated_cell
+from scanner.world import simulated_cell
 
 
 def connect(config) -> Hardware:
@@ -19,7 +19,7 @@ def connect_board_cell(config) -> Hardware:
     """The calibration cell (board on its stand) of `scanner calibrate --driver ...`."""
     from dataclasses import replace
 
-    from scanner.calibrate_sim import build_world
+    from scanner.calibrate.eye_in_hand import build_world
 
     world = build_world(replace(config, driver=None))
     return Hardware(world.robot, world.camera)

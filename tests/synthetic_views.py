@@ -15,11 +15,17 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from reconstruction.poses import invert, pose, transform_points, twist_to_pose
+from reconstruction.transforms import (
+    invert,
+    make_pose,
+    rotation_about,
+    transform_points,
+    twist_to_pose,
+)
 from reconstruction.views import DepthImage, ViewCloud
 from robots.camera_tool import nominal_X_FC
 from robots.objects import resolve_object
-from robots.truth import axis_angle_matrix
+from scanner.sampling import fibonacci_directions
 
 OBJECT_CENTER_W = np.array([0.30, 0.0, 0.78])  # the default cell's scan centre
 # The view direction the RX60 reaches best: from the robot's side, slightly from below
@@ -45,17 +51,13 @@ def look_at(p_WC: np.ndarray, p_WT: np.ndarray, roll_rad: float) -> np.ndarray:
     x = np.cross(-up, z)
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
-    R = np.stack([x, y, z], axis=1) @ axis_angle_matrix(np.array([0, 0, 1.0]), roll_rad)
-    return pose(R, p_WC)
+    R = np.stack([x, y, z], axis=1) @ rotation_about(np.array([0, 0, 1.0]), roll_rad)
+    return make_pose(R, p_WC)
 
 
 def cap_directions(n: int, axis: np.ndarray, half_angle_rad: float) -> np.ndarray:
     """n directions spread over a spherical cap (Fibonacci spiral in the cap's area)."""
-    k = np.arange(n) + 0.5
-    cos_t = 1 - (1 - math.cos(half_angle_rad)) * k / n
-    phi = math.pi * (1 + 5**0.5) * k
-    s = np.sqrt(1 - cos_t**2)
-    local = np.stack([s * np.cos(phi), s * np.sin(phi), cos_t], axis=1)
+    local = fibonacci_directions(n, math.cos(half_angle_rad), 1.0)
     a = np.asarray(axis, float) / np.linalg.norm(axis)
     helper = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
     e1 = np.cross(helper, a)
@@ -111,8 +113,8 @@ def make_scan(
     X_FC_nominal = nominal_X_FC(0.12)
     axis = rng.standard_normal(3)
     shift = rng.standard_normal(3)
-    X_err = pose(
-        axis_angle_matrix(axis, handeye_error_rad),
+    X_err = make_pose(
+        rotation_about(axis, handeye_error_rad),
         handeye_error_m * shift / np.linalg.norm(shift),
     )
     X_FC_true = X_FC_nominal @ X_err

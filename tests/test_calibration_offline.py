@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from reconstruction.boards import BoardSpec
-from reconstruction.calibration_file import load_calibration
+from reconstruction.calibration.boards import BoardSpec
+from reconstruction.calibration.file import load_calibration
+from reconstruction.calibration.pose_files import pose_format
 from reconstruction.errors import ScannerError
-from reconstruction.pose_files import pose_format
-from scanner.calibrate import OfflineOptions, calibrate_directory
+from scanner.calibrate.offline import OfflineOptions, calibrate_directory
 from tests.conftest import shared_data
 
 REAL = "real/handeye_open3dv_eye_in_hand_circlegrid"
@@ -186,7 +186,7 @@ def test_planned_mover_executes_or_reports_the_failure():
     from types import SimpleNamespace
 
     from planners.planner import PlanFailure
-    from scanner.calibrate_sim import PlannedMover
+    from scanner.calibrate.eye_in_hand import PlannedMover
 
     executed = []
     robot = SimpleNamespace(

@@ -10,15 +10,17 @@ import math
 import numpy as np
 import pytest
 
-from reconstruction.calibration import PoseObservation, calibrate_hand_eye, motion_summary
-from reconstruction.calibration_file import load_calibration
+from reconstruction.calibration.eye_in_hand import calibrate_hand_eye
+from reconstruction.calibration.file import load_calibration
+from reconstruction.calibration.hand_eye import motion_summary
+from reconstruction.calibration.observations import PoseObservation
 from reconstruction.errors import ScannerError
-from reconstruction.rigid import make_X, pose_error
+from reconstruction.transforms import make_pose, pose_difference
 from robots import camera_tool
 from robots.truth import load_truth
-from scanner.calibrate import CalibrateConfig
-from scanner.calibrate_eye_to_hand import run_eye_to_hand
-from scanner.calibrate_sim import run_eye_in_hand
+from scanner.calibrate.config import CalibrateConfig
+from scanner.calibrate.eye_in_hand import run_eye_in_hand
+from scanner.calibrate.eye_to_hand import run_eye_to_hand
 from scanner.captures import CaptureStore
 
 HANDEYE_TOL_M = 0.3e-3  # the target
@@ -35,14 +37,15 @@ def sim_calibration(tmp_path_factory):
 def test_hand_eye_matches_the_truth(sim_calibration):
     report = sim_calibration.report
     truth, extra = load_truth(sim_calibration.out_dir / "truth.yaml")
-    dt, dr = pose_error(sim_calibration.solution.hand_eye.X_FC, truth.X_FC)
+    dt, dr = pose_difference(sim_calibration.solution.hand_eye.X_FC, truth.X_FC)
     assert dt < HANDEYE_TOL_M and dr < HANDEYE_TOL_RAD
     assert report["truth"]["handeye_error_m"] == pytest.approx(dt)
     # The nominal X_FC is 3 mm and 1 deg off (the error model): calibration removed that.
-    nominal_dt, nominal_dr = pose_error(camera_tool.nominal_X_FC(), truth.X_FC)
+    nominal_dt, nominal_dr = pose_difference(camera_tool.nominal_X_FC(), truth.X_FC)
     assert nominal_dt == pytest.approx(3e-3, rel=0.01)
     assert nominal_dr == pytest.approx(math.radians(1.0), rel=0.01)
-    assert pose_error(sim_calibration.solution.hand_eye.X_WB, np.array(extra["X_WB"]))[0] < 1e-3
+    X_WB = sim_calibration.solution.hand_eye.X_WB
+    assert pose_difference(X_WB, np.array(extra["X_WB"]))[0] < 1e-3
 
 
 def test_stereo_calibration(sim_calibration):
@@ -83,12 +86,12 @@ def test_an_injected_bad_pose_is_rejected(sim_calibration):
     # The robot reports a pose 4 mm and 0.5 deg off where it stood (a dropped encoder count,
     # a pose file line from another run...).
     c, s = math.cos(math.radians(0.5)), math.sin(math.radians(0.5))
-    X_err = make_X(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), [0.004, 0, 0])
+    X_err = make_pose(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), [0.004, 0, 0])
     observations[7] = PoseObservation(bad.name, bad.X_WF @ X_err, bad.left, bad.right)
     result = calibrate_hand_eye(CalibrateConfig().board, observations, solution.calibration.stereo)
     assert result.outliers == [bad.name]
     truth, _ = load_truth(sim_calibration.out_dir / "truth.yaml")
-    dt, dr = pose_error(result.X_FC, truth.X_FC)
+    dt, dr = pose_difference(result.X_FC, truth.X_FC)
     assert dt < HANDEYE_TOL_M and dr < HANDEYE_TOL_RAD
 
 
@@ -106,8 +109,8 @@ def test_an_unreachable_board_is_a_clear_error():
     from dataclasses import replace
 
     from robots.calibration_board import BoardPlacement
-    from scanner.calibrate_sim import build_world, planner_reachable
-    from scanner.calibration_stations import plan_stations
+    from scanner.calibrate.eye_in_hand import build_world, planner_reachable
+    from scanner.calibrate.stations import plan_stations
 
     config = replace(CalibrateConfig(), placement=BoardPlacement(center_m=(1.5, 0.0, 0.2)))
     world = build_world(config)
@@ -126,8 +129,8 @@ def test_an_unreachable_board_is_a_clear_error():
 def test_eye_in_hand_on_a_hardware_driver(tmp_path):
     from dataclasses import replace
 
-    from reconstruction.rigid import pose_error
-    from scanner.calibrate_sim import build_world
+    from reconstruction.transforms import pose_difference
+    from scanner.calibrate.eye_in_hand import build_world
 
     config = CalibrateConfig()
     config = replace(config, stations=replace(config.stations, count=12))
@@ -137,7 +140,7 @@ def test_eye_in_hand_on_a_hardware_driver(tmp_path):
     assert run.report.get("truth") is None
     # The driver wraps the same seeded simulator: its truth is known to the test only.
     X_FC_true = build_world(config).sim.truth.X_FC
-    error_m, error_rad = pose_error(run.solution.hand_eye.X_FC, X_FC_true)
+    error_m, error_rad = pose_difference(run.solution.hand_eye.X_FC, X_FC_true)
     assert error_m < 0.5e-3 and error_rad < math.radians(0.1)
 
 

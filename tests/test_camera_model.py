@@ -12,7 +12,7 @@ from reconstruction.camera_model import (
     stereo_camera_to_dict,
 )
 from reconstruction.errors import ScannerError
-from reconstruction.rectification import compute_rectification
+from reconstruction.stereo.rectification import compute_rectification
 
 
 def _calibrated_like() -> StereoCamera:

@@ -307,28 +307,6 @@ def test_validation_rejects_collisions_and_limit_violations(planner, views):
     assert planner.validate(result, q_goal, q_start).failed_check == "endpoints"
 
 
-# --- tours -------------------------------------------------------------------------------------
-
-
-def test_tour_chains_legs_and_skips_unreachable_views(planner, views, independent_checker):
-    goals = [views[0], [], views[len(views) // 2], [goal_inside_the_object(planner)], views[-1]]
-    tour = planner.plan_tour(HOME_Q, goals)
-    assert [leg.goal_index for leg in tour.legs] == [0, 1, 2, 3, 4]
-    assert tour.skipped == [1, 3]
-    assert all(leg.result.reason == "goal_unreachable" for leg in tour.legs if leg.q_goal is None)
-    q = HOME_Q
-    for leg in tour.legs:
-        if isinstance(leg.result, Trajectory):
-            assert np.array_equal(leg.result.q_start, q)
-            recheck(leg.result, q, leg.q_goal, independent_checker)
-            q = leg.q_goal
-    reordered = planner.plan_tour(HOME_Q, goals, reorder=True)
-    assert sorted(leg.goal_index for leg in reordered.legs) == [0, 1, 2, 3, 4]
-    # Viewpoints without any configuration go last.
-    assert set(reordered.skipped) == {1, 3}
-    assert {leg.goal_index for leg in reordered.legs[-2:]} >= {1}
-
-
 # --- the roadmap cache -------------------------------------------------------------------------
 
 

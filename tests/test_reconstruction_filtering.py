@@ -7,7 +7,7 @@ import pytest
 
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import FilterConfig, RegionOfInterest, filter_view
-from reconstruction.poses import pose
+from reconstruction.transforms import make_pose
 
 
 def _plane_C(n: int = 80, spacing_m: float = 0.001, depth_m: float = 0.5) -> np.ndarray:
@@ -21,7 +21,7 @@ def _grey(n: int) -> np.ndarray:
     return np.full((n, 3), 128, np.uint8)
 
 
-X_WC_SHIFTED = pose(np.eye(3), [1.0, 2.0, 3.0])
+X_WC_SHIFTED = make_pose(np.eye(3), [1.0, 2.0, 3.0])
 
 
 def test_roi_crops_in_the_world_frame():

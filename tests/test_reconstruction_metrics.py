@@ -18,7 +18,7 @@ from reconstruction.metrics import (
     surface_metrics,
     visible_mask,
 )
-from reconstruction.poses import pose, twist_to_pose
+from reconstruction.transforms import make_pose, twist_to_pose
 
 
 def _grid(n: int = 60, spacing_m: float = 0.001) -> np.ndarray:
@@ -134,7 +134,7 @@ def test_evaluate_surface_of_the_truth_itself_is_near_zero():
 
 
 def test_handeye_error_splits_translation_and_rotation():
-    X = pose(np.eye(3), [0.0, 0.0, 0.08])
+    X = make_pose(np.eye(3), [0.0, 0.0, 0.08])
     X_err = X @ twist_to_pose([0.0, 0.0, math.radians(0.5), 0.003, 0.004, 0.0])
     e = handeye_error(X_err, X)
     assert e["handeye_error_mm"] == pytest.approx(5.0)

@@ -16,16 +16,11 @@ from synthetic_views import OBJECT_CENTER_W, ROBOT_SIDE, cap_directions, make_sc
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import FilterConfig, RegionOfInterest
 from reconstruction.metrics import TriangleSurface, evaluate_surface, handeye_error
-from reconstruction.pipeline import (
-    ReconstructionConfig,
-    reconstruct_views,
-    save_outputs,
-    summary,
-    variant_config,
-)
-from reconstruction.poses import pose_difference, transform_points
+from reconstruction.outputs import save_outputs, summary
+from reconstruction.pipeline import ReconstructionConfig, reconstruct_views, variant_config
 from reconstruction.registration import IcpConfig
 from reconstruction.surfaces import SurfaceConfig
+from reconstruction.transforms import pose_difference, transform_points
 from reconstruction.views import ViewCloud
 
 # Defaults except what keeps this file at seconds: 4 ICP partners per view (default 6) and

@@ -10,7 +10,6 @@ from synthetic_views import OBJECT_CENTER_W, ROBOT_SIDE, cap_directions, look_at
 
 from reconstruction.filtering import FilterConfig, RegionOfInterest, filter_view
 from reconstruction.posegraph import PoseEdge, PoseGraphConfig, optimise_pose_graph
-from reconstruction.poses import invert, pose_difference, transform_points, twist_to_pose
 from reconstruction.registration import (
     IcpConfig,
     build_pyramid,
@@ -20,6 +19,7 @@ from reconstruction.registration import (
     register_pair,
     select_pairs,
 )
+from reconstruction.transforms import invert, pose_difference, transform_points, twist_to_pose
 
 ROI = RegionOfInterest(center_m=tuple(OBJECT_CENTER_W))
 

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from reconstruction.rectification import compute_rectification, rectify_pair
+from reconstruction.stereo.rectification import compute_rectification, rectify_pair
 from robots.sim_camera import distortion_maps
 
 

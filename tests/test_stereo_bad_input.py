@@ -5,14 +5,10 @@ import pytest
 
 from reconstruction.camera_model import default_stereo_camera
 from reconstruction.errors import ScannerError
-from reconstruction.rectification import compute_rectification
-from reconstruction.stereo import (
-    StereoParams,
-    compute_disparity,
-    disparity_window,
-    object_depth_window,
-    stereo_cloud,
-)
+from reconstruction.stereo.cloud import stereo_cloud
+from reconstruction.stereo.matching import compute_disparity
+from reconstruction.stereo.params import StereoParams, disparity_window, object_depth_window
+from reconstruction.stereo.rectification import compute_rectification
 
 GREY = np.zeros((96, 128), np.uint8)
 

@@ -5,13 +5,10 @@ import numpy as np
 import pytest
 
 from reconstruction.camera_model import default_stereo_camera
-from reconstruction.rectification import compute_rectification
-from reconstruction.stereo import (
-    compute_disparity,
-    disparity_window,
-    points_from_disparity,
-    reproject,
-)
+from reconstruction.stereo.cloud import points_from_disparity, reproject
+from reconstruction.stereo.matching import compute_disparity
+from reconstruction.stereo.params import disparity_window
+from reconstruction.stereo.rectification import compute_rectification
 
 # undistortPoints must invert k1 = -0.42 to far below a micrometre at 0.5 m (1e-6 m = 0.003 px).
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-15)
@@ -109,7 +106,7 @@ def test_compute_disparity_recovers_a_known_shift():
 def test_half_occlusion_next_to_a_step():
     """Background (d = 10 px) left of a foreground edge at column 50 (d = 20 px): the right
     camera, 20 - 10 px further left for the foreground, cannot see columns 40..49."""
-    from reconstruction.stereo_metrics import hidden_from_right
+    from reconstruction.stereo.metrics import hidden_from_right
 
     row = np.full((1, 100), 10.0, np.float32)
     row[0, 50:] = 20.0

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from reconstruction.stereo import compute_disparity
+from reconstruction.stereo.matching import compute_disparity
 from tests.conftest import shared_data
 
 # scene: left, right, ground truth, GT scale, num_disparities, reference bad % (only where

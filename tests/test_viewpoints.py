@@ -6,15 +6,10 @@ import numpy as np
 import pytest
 
 from planners.ik import Viewpoint
+from planners.tour import plan_tour, tour_cost
 from reconstruction.errors import ScannerError
-from scanner.tour import plan_tour, tour_cost
-from scanner.viewpoints import (
-    PlannedView,
-    ViewOption,
-    ViewpointConfig,
-    fibonacci_directions,
-    generate_viewpoints,
-)
+from scanner.sampling import fibonacci_directions
+from scanner.viewpoints import PlannedView, ViewOption, ViewpointConfig, generate_viewpoints
 
 
 def _min_angle(d):

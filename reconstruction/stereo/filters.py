@@ -1,9 +1,9 @@
 """Masks that reject unreliable disparities: weak texture, disparity jumps, left-right mismatch.
 
 SGBM's smoothness term propagates a textured object's disparity into the untextured background
-next to it (measured on this simulator: 26-46 % of background pixels get object-like depths,
-DESIGN.md), which would grow a "skirt" around every silhouette. These pure functions build
-boolean masks (True = keep) on the rectified left grid; `reconstruction.stereo` applies them.
+next to it (measured on the simulator: 26-46 % of background pixels get object-like depths),
+which would grow a "skirt" around every silhouette. These pure functions build boolean masks
+(True = keep) on the rectified left grid; `reconstruction.stereo.matching` applies them.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ object pixels valid, seconds per pair including rectification and reprojection):
 p90 2 mm); block 3 keeps 2 % more object pixels than block 5 on slanted surfaces at the same
 accuracy; a full second left-right pass costs 0.12 s and 4 % of the object pixels for 0.01 mm.
 Half OpenCV's P1 (4 cn bs^2) measured 0.02 mm better and 1 % more coverage; the default stays
-OpenCV's advice (issue 7), p1 is a parameter.
+OpenCV's advice, p1 is a parameter.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from dataclasses import dataclass, fields
 
 import cv2
 
+from reconstruction.checks import require_choice, require_count, require_non_negative
 from reconstruction.errors import ScannerError
 
 SGBM_MODES = {
@@ -77,30 +78,20 @@ class StereoParams:
     subsample_step_px: int = 1
 
     def __post_init__(self) -> None:
-        if self.mode not in SGBM_MODES:
-            raise ScannerError(f"stereo.mode: '{self.mode}' is not one of {sorted(SGBM_MODES)}")
+        require_choice("stereo", "mode", self.mode, SGBM_MODES)
         for name in ("block_size_px", "texture_window_px", "jump_window_px"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1 and value % 2 == 1):
                 raise ScannerError(f"stereo.{name}: must be an odd positive integer, got {value}")
-        for name in ("uniqueness_ratio_percent", "speckle_window_px", "speckle_range_px"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 0):
-                raise ScannerError(f"stereo.{name}: must be a non-negative integer, got {value}")
-        if not (isinstance(self.disp12_max_diff_px, int) and self.disp12_max_diff_px >= 1):
-            raise ScannerError(
-                f"stereo.disp12_max_diff_px: must be an integer >= 1 (OpenCV cannot switch its "
-                f"check off), got {self.disp12_max_diff_px}"
-            )
-        if not (isinstance(self.subsample_step_px, int) and self.subsample_step_px >= 1):
-            raise ScannerError(
-                f"stereo.subsample_step_px: must be a positive integer, got "
-                f"{self.subsample_step_px}"
-            )
-        for name in ("texture_min_std_levels", "max_jump_px"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ScannerError(f"stereo.{name}: must be a non-negative number, got {value}")
+        require_count(
+            "stereo",
+            self,
+            ("uniqueness_ratio_percent", "speckle_window_px", "speckle_range_px"),
+            minimum=0,
+        )
+        # OpenCV cannot switch its internal left-right check off.
+        require_count("stereo", self, ("disp12_max_diff_px", "subsample_step_px"))
+        require_non_negative("stereo", self, ("texture_min_std_levels", "max_jump_px"))
         if self.lr_check_max_diff_px is not None and not self.lr_check_max_diff_px > 0:
             raise ScannerError(
                 f"stereo.lr_check_max_diff_px: must be positive or None, got "

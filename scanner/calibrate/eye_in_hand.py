@@ -29,21 +29,17 @@ from robots.kinematics import Kinematics
 from robots.simulation import Simulation, cache_dir, create_simulation
 from robots.truth import save_truth
 from robots.workcell import build_workcell
-from scanner.calibrate import (
-    CalibrateConfig,
-    CalibrationRun,
-    MoveFn,
-    OfflineOptions,
-    calibrate_directory,
-)
-from scanner.calibration_stations import plan_stations
-from scanner.captures import Capture, CaptureStore, atomic_write_text
+from scanner.calibrate.config import CalibrateConfig
+from scanner.calibrate.offline import OfflineOptions, calibrate_directory
+from scanner.calibrate.solve import CalibrationRun
+from scanner.calibrate.stations import plan_stations
+from scanner.captures import Capture, CaptureStore, atomic_write_text, require_same_settings
 from scanner.typed_yaml import to_dict
 
+# Moves the arm to a configuration; False when it could not (the station is skipped).
+MoveFn = Callable[[np.ndarray], bool]
 
-# --------------------------------------------------------------------------------------------
-# Simulated eye-in-hand calibration
-# --------------------------------------------------------------------------------------------
+
 @dataclass
 class CalibrationWorld:
     """The cell with the board (simulated, or real through a driver), and the software's
@@ -131,12 +127,7 @@ def _check_resume_matches(manifest: dict, config: CalibrateConfig, where: Path) 
         "camera": stereo_camera_to_dict(config.camera.stereo_camera()),
         "driver": config.driver,
     }
-    differing = sorted(k for k, v in wanted.items() if manifest.get(k) != v)
-    if differing:
-        raise ScannerError(
-            f"{where}: the calibration was started with a different {', '.join(differing)}; "
-            "resume with the same configuration"
-        )
+    require_same_settings(where, "calibration", {k: manifest.get(k) for k in wanted}, wanted)
 
 
 def _station_list(manifest: dict, where: str) -> list[tuple[int, np.ndarray]]:

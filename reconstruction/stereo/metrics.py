@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from reconstruction.rectification import Rectification
-from reconstruction.stereo import StereoCloud, sample_image
+from reconstruction.stereo.cloud import StereoCloud, sample_image
+from reconstruction.stereo.rectification import Rectification
 
 # A left pixel counts as hidden from the right camera when something lands within this many
 # pixels left of its match: half a pixel is the resolution of the right image itself.

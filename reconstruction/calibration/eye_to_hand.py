@@ -25,7 +25,7 @@ import numpy as np
 
 from reconstruction.camera_model import StereoCamera
 from reconstruction.errors import ScannerError
-from reconstruction.rigid import make_X, transform_points
+from reconstruction.transforms import make_pose, transform_points
 
 
 @dataclass(frozen=True)
@@ -138,7 +138,7 @@ def fit_rigid(p_A: np.ndarray, p_B: np.ndarray) -> np.ndarray:
         raise ScannerError("a rigid fit needs points that are not all on one line")
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
     R = Vt.T @ D @ U.T
-    return make_X(R, ca - R @ cb)
+    return make_pose(R, ca - R @ cb)
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,8 +1,14 @@
-"""Rigid transforms as 4x4 numpy arrays: inverse, small perturbations, and pose differences.
+"""Rigid transforms as 4x4 numpy arrays (monogram notation: X_AB is the pose of B in A).
 
+The one place for poses and rotations: make, invert, apply, perturb, compare and average them.
 Perturbations use the decoupled parametrisation xi = (w, v): R = exp([w]x), t = v. At xi = 0 its
 Jacobian equals the SE(3) exponential's, which is all Gauss-Newton needs, and it keeps rotation
 and translation tolerances separate, as the reports state them.
+
+Rotation vectors go through Rodrigues' formula in numpy scalars: scipy's Rotation costs ~20x more
+per call, and the pose graph and hand-eye loops call this thousands of times. scipy's Rotation
+takes over where it is the better tool: near a half turn, for Euler angles and quaternions in
+pose files, and for the mean of many rotations.
 """
 
 from __future__ import annotations
@@ -15,37 +21,54 @@ from scipy.spatial.transform import Rotation
 from reconstruction.errors import ScannerError
 
 
-def pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+def make_pose(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """The 4x4 transform with rotation R (3x3) and translation p (3,)."""
     X = np.eye(4)
     X[:3, :3] = R
-    X[:3, 3] = t
+    X[:3, 3] = np.asarray(p, float).ravel()
     return X
 
 
 def invert(X_AB: np.ndarray) -> np.ndarray:
     """X_BA from X_AB (exact for rigid transforms, unlike np.linalg.inv)."""
     R = X_AB[:3, :3]
-    return pose(R.T, -R.T @ X_AB[:3, 3])
+    return make_pose(R.T, -R.T @ X_AB[:3, 3])
 
 
 def transform_points(X_AB: np.ndarray, p_B: np.ndarray) -> np.ndarray:
-    """p_A for (N, 3) points p_B."""
+    """p_A (N, 3) of points p_B (N, 3)."""
     return p_B @ X_AB[:3, :3].T + X_AB[:3, 3]
 
 
 def rotate_vectors(X_AB: np.ndarray, v_B: np.ndarray) -> np.ndarray:
+    """Directions v_B (N, 3) expressed in A (rotation only)."""
     return v_B @ X_AB[:3, :3].T
 
 
+def skew(v: np.ndarray) -> np.ndarray:
+    """(N, 3) vectors -> (N, 3, 3) cross-product matrices."""
+    v = np.atleast_2d(v)
+    S = np.zeros((len(v), 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
+    return S
+
+
 def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula (numpy scalars: scipy's Rotation costs ~20x more per call, and the
-    pose graph and hand-eye loops call this thousands of times)."""
-    w = np.asarray(w, float)
+    """Rotation matrix of a rotation vector (axis times angle, rad), by Rodrigues' formula."""
+    w = np.asarray(w, float).ravel()
     theta = math.sqrt(float(w @ w))
     K = skew(w)[0]
     if theta < 1e-8:
         return np.eye(3) + K + 0.5 * K @ K
     return np.eye(3) + math.sin(theta) / theta * K + (1 - math.cos(theta)) / theta**2 * K @ K
+
+
+def rotation_about(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """Rotation by angle_rad about `axis` (any length but zero)."""
+    axis = np.asarray(axis, float)
+    return rotvec_to_matrix(axis / np.linalg.norm(axis) * angle_rad)
 
 
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
@@ -60,10 +83,15 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     return v * (theta / s) if s > 1e-12 else v
 
 
+def rotation_angle_rad(R: np.ndarray) -> float:
+    """Angle of a rotation matrix, precise near 0 (see `matrix_to_rotvec`)."""
+    return float(np.linalg.norm(matrix_to_rotvec(R)))
+
+
 def twist_to_pose(xi: np.ndarray) -> np.ndarray:
     """(w, v) -> 4x4 with R = exp([w]x), t = v (decoupled; see the module docstring)."""
     xi = np.asarray(xi, float)
-    return pose(rotvec_to_matrix(xi[:3]), xi[3:])
+    return make_pose(rotvec_to_matrix(xi[:3]), xi[3:])
 
 
 def pose_to_twist(X: np.ndarray) -> np.ndarray:
@@ -71,9 +99,9 @@ def pose_to_twist(X: np.ndarray) -> np.ndarray:
     return np.concatenate([matrix_to_rotvec(X[:3, :3]), X[:3, 3]])
 
 
-def rotation_angle_rad(R: np.ndarray) -> float:
-    """Angle of a rotation matrix, precise near 0 (see `matrix_to_rotvec`)."""
-    return float(np.linalg.norm(matrix_to_rotvec(R)))
+def pose_from_rvec_tvec(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+    """OpenCV's (rvec, tvec) of an object O seen by camera C (e.g. solvePnP's) -> X_CO."""
+    return make_pose(rotvec_to_matrix(rvec), tvec)
 
 
 def pose_difference(X_a: np.ndarray, X_b: np.ndarray) -> tuple[float, float]:
@@ -84,21 +112,11 @@ def pose_difference(X_a: np.ndarray, X_b: np.ndarray) -> tuple[float, float]:
     )
 
 
-def skew(v: np.ndarray) -> np.ndarray:
-    """(N, 3) vectors -> (N, 3, 3) cross-product matrices."""
-    v = np.atleast_2d(v)
-    S = np.zeros((len(v), 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
-    return S
-
-
 def mean_pose(poses: list[np.ndarray]) -> np.ndarray:
     """Chordal mean: average rotation projected back onto SO(3), arithmetic mean translation."""
     Rs = np.array([X[:3, :3] for X in poses])
     R = Rotation.from_matrix(Rs).mean().as_matrix()
-    return pose(R, np.mean([X[:3, 3] for X in poses], axis=0))
+    return make_pose(R, np.mean([X[:3, 3] for X in poses], axis=0))
 
 
 def check_pose(X: np.ndarray, name: str) -> np.ndarray:

@@ -28,8 +28,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from reconstruction.errors import ScannerError
-from reconstruction.rigid import inverse as inverse_pose
-from reconstruction.rigid import make_X
+from reconstruction.transforms import invert as inverse_pose
+from reconstruction.transforms import make_pose
 
 POSE_LAYOUTS: dict[str, tuple[int, ...]] = {
     "matrix": (16, 12),
@@ -131,18 +131,18 @@ def pose_from_numbers(values: np.ndarray, fmt: PoseFormat, where: str) -> np.nda
             raise ScannerError(f"{where}: the upper-left 3x3 block is not a rotation matrix")
         # Re-orthonormalise: printed matrices carry 4-6 digits.
         U, _, Vt = np.linalg.svd(R)
-        X = make_X(U @ Vt, X[:3, 3] * scale)
+        X = make_pose(U @ Vt, X[:3, 3] * scale)
     elif fmt.layout in ("xyz_euler", "euler_xyz"):
         xyz, abc = (v[:3], v[3:]) if fmt.layout == "xyz_euler" else (v[3:], v[:3])
-        X = make_X(Rotation.from_euler(fmt.euler, abc * angle).as_matrix(), xyz * scale)
+        X = make_pose(Rotation.from_euler(fmt.euler, abc * angle).as_matrix(), xyz * scale)
     elif fmt.layout in ("xyz_quat", "xyz_wxyz"):
         q = v[3:] if fmt.layout == "xyz_quat" else np.r_[v[4:], v[3]]
         norm = np.linalg.norm(q)
         if not 0.99 < norm < 1.01:
             raise ScannerError(f"{where}: quaternion norm is {norm:.4f}, expected 1")
-        X = make_X(Rotation.from_quat(q / norm).as_matrix(), v[:3] * scale)
+        X = make_pose(Rotation.from_quat(q / norm).as_matrix(), v[:3] * scale)
     else:  # xyz_rotvec
-        X = make_X(Rotation.from_rotvec(v[3:] * angle).as_matrix(), v[:3] * scale)
+        X = make_pose(Rotation.from_rotvec(v[3:] * angle).as_matrix(), v[:3] * scale)
     return inverse_pose(X) if fmt.inverse else X
 
 

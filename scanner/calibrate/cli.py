@@ -9,17 +9,13 @@ import re
 from dataclasses import replace
 from pathlib import Path
 
-from reconstruction.boards import BoardSpec
+from reconstruction.calibration.boards import BoardSpec
+from reconstruction.calibration.pose_files import pose_format
 from reconstruction.errors import ScannerError
-from reconstruction.pose_files import pose_format
-from scanner.calibrate import (
-    CalibrateConfig,
-    OfflineOptions,
-    calibrate_directory,
-    load_calibrate_config,
-)
-from scanner.calibrate_eye_to_hand import run_eye_to_hand
-from scanner.calibrate_sim import run_eye_in_hand
+from scanner.calibrate.config import CalibrateConfig, load_calibrate_config
+from scanner.calibrate.eye_in_hand import run_eye_in_hand
+from scanner.calibrate.eye_to_hand import run_eye_to_hand
+from scanner.calibrate.offline import OfflineOptions, calibrate_directory
 from scanner.progress import ProgressBar
 
 

@@ -1,25 +1,36 @@
-"""Visiting order: minimise the total robot motion time over views with alternative configurations.
+"""Visiting order: minimise the total robot motion time over stops with alternative configurations.
 
 An open tour from the current configuration: nearest neighbour, then alternate 2-opt on the
-order (configurations fixed) with an exact re-choice of every view's configuration along the
-order (Viterbi over the options), until neither improves.
+order (configurations fixed) with an exact re-choice of every stop's configuration along the
+order (Viterbi over the options), until neither improves. A stop is anything with `options`,
+each option a joint configuration `q` (the scan's views: camera rolls x IK branches).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
-
-from scanner.viewpoints import PlannedView
 
 CostFn = Callable[[np.ndarray, np.ndarray], float]
 
 
+class _Option(Protocol):
+    q: np.ndarray
+
+
+class TourStop(Protocol):
+    """A place to visit, reachable in any of several joint configurations."""
+
+    @property
+    def options(self) -> Sequence[_Option]: ...
+
+
 @dataclass(frozen=True, eq=False)
 class Tour:
-    """Views in visiting order with the chosen option index of each; estimated total cost (s)."""
+    """Stops in visiting order with the chosen option index of each; estimated total cost (s)."""
 
     order: tuple[int, ...]
     option: tuple[int, ...]
@@ -29,7 +40,7 @@ class Tour:
 class _Costs:
     """Cost between (view, option) nodes, computed once."""
 
-    def __init__(self, q_start: np.ndarray, views: Sequence[PlannedView], cost: CostFn) -> None:
+    def __init__(self, q_start: np.ndarray, views: Sequence[TourStop], cost: CostFn) -> None:
         self.node_of = [[] for _ in views]
         qs = []
         for v, view in enumerate(views):
@@ -110,8 +121,10 @@ def _viterbi(c: _Costs, order: list[int], option: list[int]) -> bool:
 
 
 def plan_tour(
-    q_start: np.ndarray, views: Sequence[PlannedView], cost: CostFn, max_rounds: int = 5
+    q_start: np.ndarray, views: Sequence[TourStop], cost: CostFn, max_rounds: int = 5
 ) -> Tour:
+    """The visiting order and the option of every stop that minimise the summed `cost` (e.g.
+    the planner's estimated motion time) from q_start; `max_rounds` of 2-opt + Viterbi."""
     if not views:
         return Tour((), (), 0.0)
     c = _Costs(q_start, views, cost)
@@ -124,7 +137,7 @@ def plan_tour(
 
 def tour_cost(
     q_start: np.ndarray,
-    views: Sequence[PlannedView],
+    views: Sequence[TourStop],
     order: Sequence[int],
     option: Sequence[int],
     cost: CostFn,

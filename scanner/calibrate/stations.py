@@ -19,11 +19,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from planners.ik import Viewpoint, camera_pose, rig_centre_offset
-from reconstruction.boards import BoardSpec
-from reconstruction.calibration import project
-from reconstruction.camera_model import StereoCamera
+from reconstruction.calibration.boards import BoardSpec
+from reconstruction.camera_model import StereoCamera, project_points
 from reconstruction.errors import ScannerError
-from reconstruction.rigid import inverse, transform_points
+from reconstruction.transforms import invert, transform_points
+from scanner.sampling import farthest_point_sample
 
 ReachableFn = Callable[[Viewpoint], list[np.ndarray]]
 
@@ -97,13 +97,13 @@ def board_in_view(
     """The whole board inside both images (nominal model), at least margin_px from the edges."""
     p_B = _board_outline_B(board)
     for camera, X_WS in ((stereo.left, X_WC), (stereo.right, X_WC @ stereo.X_CR)):
-        p_S = transform_points(inverse(X_WS) @ X_WB, p_B)
+        p_S = transform_points(invert(X_WS) @ X_WB, p_B)
         if np.any(p_S[:, 2] <= 0.05):
             return False
         # Far outside the field the distortion polynomial folds back; reject before projecting.
         if np.any(np.hypot(p_S[:, 0], p_S[:, 1]) / p_S[:, 2] > 1.0):
             return False
-        uv = project(camera, p_S)
+        uv = project_points(camera, p_S)
         if (
             np.any(uv < margin_px)
             or np.any(uv[:, 0] > camera.width - margin_px)
@@ -171,15 +171,13 @@ def plan_stations(
     normal = -X_WB[:3, 2]
     # Start from the most frontal view (the easiest detection), then farthest-point sampling.
     tilts = [float(np.arccos(np.clip(-X[:3, 2] @ normal, -1, 1))) for _, _, X in options]
-    chosen = [int(np.argmin(tilts))]
-    distance = np.full(len(options), np.inf)
-    while len(chosen) < config.count:
-        last = chosen[-1]
-        cos = np.clip((np.einsum("kij,ij->k", R, R[last]) - 1) / 2, -1, 1)
-        d = np.arccos(cos) + config.position_weight_rad_per_m * np.linalg.norm(p - p[last], axis=1)
-        distance = np.minimum(distance, d)
-        distance[chosen] = -np.inf
-        chosen.append(int(np.argmax(distance)))
+    weight = config.position_weight_rad_per_m
+
+    def distances_from(i: int) -> np.ndarray:
+        cos = np.clip((np.einsum("kij,ij->k", R, R[i]) - 1) / 2, -1, 1)
+        return np.arccos(cos) + weight * np.linalg.norm(p - p[i], axis=1)
+
+    chosen = farthest_point_sample(config.count, int(np.argmin(tilts)), distances_from)
     stations = tuple(
         Station(k, options[i][0], options[i][1], options[i][2]) for k, i in enumerate(chosen)
     )

@@ -14,35 +14,26 @@ import numpy as np
 import yaml
 
 from planners.ik import ik_flange, look_at_rotation
-from reconstruction.camera_model import (
-    stereo_camera_to_dict,
-)
-from reconstruction.errors import ScannerError
-from reconstruction.eye_to_hand import (
+from reconstruction.calibration.eye_to_hand import (
     detect_blinking_marker,
     fit_rigid_robust,
     grid_points,
     held_out_errors,
     triangulate,
 )
-from reconstruction.rigid import pose_error, transform_points
+from reconstruction.camera_model import (
+    stereo_camera_to_dict,
+)
+from reconstruction.errors import ScannerError
+from reconstruction.transforms import make_pose, pose_difference, transform_points
 from robots.blinking_marker import BlinkingMarker
 from robots.simulation import cache_dir
 from robots.static_camera import StaticStereoCamera
-from scanner.calibrate import (
-    CalibrateConfig,
-    MoveFn,
-)
-from scanner.calibrate_sim import (
-    PlannedMover,
-    build_world,
-)
+from scanner.calibrate.config import CalibrateConfig
+from scanner.calibrate.eye_in_hand import MoveFn, PlannedMover, build_world
 from scanner.captures import atomic_write_text
 
 
-# --------------------------------------------------------------------------------------------
-# Eye-to-hand
-# --------------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class MarkerMeasurement:
     """One marker position: reported by the robot in W, triangulated in the static camera S."""
@@ -53,12 +44,70 @@ class MarkerMeasurement:
 
 def _marker_flange_pose(p_WM: np.ndarray, p_W_camera: np.ndarray, p_FM: np.ndarray) -> np.ndarray:
     """Flange pose putting the marker at p_WM with the tool (and marker) facing the camera."""
-
     R = look_at_rotation(p_WM, p_W_camera)
-    X = np.eye(4)
-    X[:3, :3] = R
-    X[:3, 3] = p_WM - R @ p_FM
-    return X
+    return make_pose(R, p_WM - R @ p_FM)
+
+
+class _MarkerSession:
+    """The simulated cell with the static camera and the marker: moves the marker to points
+    and measures it in both images."""
+
+    def __init__(self, config: CalibrateConfig, move_to: MoveFn | None) -> None:
+        self.settings = config.eye_to_hand
+        marker = BlinkingMarker(self.settings.marker, cache_dir() / "markers")
+        self.world = build_world(config, extras=(marker,), with_board=False)
+        sim = self.world.sim
+        self.stereo_S = self.settings.camera.stereo()
+        self.camera = StaticStereoCamera(
+            sim.workcell,
+            sim.truth,
+            sim.robot.true_joint_positions,
+            self.stereo_S,
+            self.settings.camera.X_WS,
+            marker,
+        )
+        self.move_to = move_to or PlannedMover(self.world.planner.plan, sim.robot)
+        self.p_FM = np.array(self.settings.marker.p_FM)
+
+    def _reach(self, p_WM: np.ndarray) -> str:
+        """Move the marker to p_WM facing the camera; '' when there, else why not."""
+        robot = self.world.sim.robot
+        X_WF = _marker_flange_pose(p_WM, np.array(self.settings.camera.position_m), self.p_FM)
+        q_now = robot.joint_positions()
+        qs = [q for q in ik_flange(robot.robot, X_WF, q_now) if self.world.is_free(q)]
+        if not qs:
+            return "unreachable or in collision"
+        q = min(qs, key=lambda q: float(np.abs(q - q_now).max()))
+        return "" if self.move_to(q) else "no collision-free path"
+
+    def _measure_here(self) -> MarkerMeasurement | None:
+        lefts, rights = self.camera.blink_frames(self.settings.frames)
+        a = detect_blinking_marker(lefts, self.settings.detection)
+        b = detect_blinking_marker(rights, self.settings.detection)
+        if a is None or b is None:
+            return None
+        p_S = triangulate(self.stereo_S, np.array([[a.u, a.v]]), np.array([[b.u, b.v]]))[0]
+        X_WF = self.world.kinematics.X_WF(self.world.sim.robot.joint_positions())
+        return MarkerMeasurement(transform_points(X_WF, self.p_FM[None])[0], p_S)
+
+    def measure(
+        self, points: np.ndarray, wanted: int, progress: Callable[[int, int], None] | None
+    ) -> tuple[list[MarkerMeasurement], list[dict]]:
+        """Measure points in turn until `wanted` are measured or the points run out."""
+        done, skipped = [], []
+        for p_WM in points:
+            if len(done) >= wanted:
+                break
+            where = [round(float(v), 4) for v in p_WM]
+            why = self._reach(p_WM)
+            measurement = None if why else self._measure_here()
+            if measurement is None:
+                skipped.append({"p_WM": where, "reason": why or "marker not seen by both cameras"})
+                continue
+            done.append(measurement)
+            if progress:
+                progress(len(done), wanted)
+        return done, skipped
 
 
 def run_eye_to_hand(
@@ -68,7 +117,6 @@ def run_eye_to_hand(
     progress: Callable[[int, int], None] | None = None,
 ) -> dict:
     """Drive the marker over the grid, fit X_WS, evaluate on random held-out points."""
-
     if config.driver:
         raise ScannerError(
             "eye-to-hand calibration runs in the simulator only (it renders the blinking "
@@ -76,52 +124,9 @@ def run_eye_to_hand(
         )
     t0 = time.perf_counter()
     e2h = config.eye_to_hand
-    marker = BlinkingMarker(e2h.marker, cache_dir() / "markers")
-    world = build_world(config, extras=(marker,), with_board=False)
-    sim = world.sim
-    stereo_S = e2h.camera.stereo()
-    X_WS_true = e2h.camera.X_WS
-    camera = StaticStereoCamera(
-        sim.workcell, sim.truth, sim.robot.true_joint_positions, stereo_S, X_WS_true, marker
-    )
-    move_to = move_to or PlannedMover(world.planner.plan, sim.robot)
-    p_FM = np.array(e2h.marker.p_FM)
-    camera_position = np.array(e2h.camera.position_m)
-    robot = sim.robot.robot
-
-    def measure(points, wanted: int) -> tuple[list[MarkerMeasurement], list[dict]]:
-        """Measure points in turn until `wanted` are measured or the points run out."""
-        done, skipped = [], []
-        for p_WM in points:
-            if len(done) >= wanted:
-                break
-            X_WF = _marker_flange_pose(p_WM, camera_position, p_FM)
-            q_now = sim.robot.joint_positions()
-            qs = [q for q in ik_flange(robot, X_WF, q_now) if world.is_free(q)]
-            where = [round(float(v), 4) for v in p_WM]
-            if not qs:
-                skipped.append({"p_WM": where, "reason": "unreachable or in collision"})
-                continue
-            q = min(qs, key=lambda q: float(np.abs(q - q_now).max()))
-            if not move_to(q):
-                skipped.append({"p_WM": where, "reason": "no collision-free path"})
-                continue
-            lefts, rights = camera.blink_frames(e2h.frames)
-            a = detect_blinking_marker(lefts, e2h.detection)
-            b = detect_blinking_marker(rights, e2h.detection)
-            if a is None or b is None:
-                skipped.append({"p_WM": where, "reason": "marker not seen by both cameras"})
-                continue
-            p_S = triangulate(stereo_S, np.array([[a.u, a.v]]), np.array([[b.u, b.v]]))[0]
-            q_meas = sim.robot.joint_positions()
-            p_W = transform_points(world.kinematics.X_WF(q_meas), p_FM[None])[0]
-            done.append(MarkerMeasurement(p_W, p_S))
-            if progress:
-                progress(len(done), wanted)
-        return done, skipped
-
+    session = _MarkerSession(config, move_to)
     grid = grid_points(e2h.grid_center_m, e2h.grid_size_m, e2h.grid_spacing_m)
-    fit_points, fit_skipped = measure(grid, len(grid))
+    fit_points, fit_skipped = session.measure(grid, len(grid), progress)
     if len(fit_points) < 4:
         raise ScannerError(
             f"eye-to-hand: only {len(fit_points)} of {len(grid)} grid points were measured; "
@@ -138,15 +143,22 @@ def run_eye_to_hand(
     # Random points in the grid's box until `held_out` are measured (unreachable ones are
     # skipped and reported; at most three draws per wanted point).
     test = np.array(e2h.grid_center_m) + rng.uniform(-half, half, (3 * e2h.held_out, 3))
-    test_points, test_skipped = measure(test, e2h.held_out)
+    test_points, test_skipped = session.measure(test, e2h.held_out, progress)
     errors = held_out_errors(
         np.array([m.p_W for m in test_points]),
         transform_points(fit.X_AB, np.array([m.p_S for m in test_points])),
     )
-    dt, dr = pose_error(fit.X_AB, X_WS_true)
-    report = {
+    report = _report(fit, len(grid), fit_skipped, test_skipped, errors, e2h.camera.X_WS)
+    report["eye_to_hand_s"] = time.perf_counter() - t0
+    _write_results(Path(out_dir) / "results", report, fit.X_AB, session)
+    return report
+
+
+def _report(fit, grid_points_count, fit_skipped, test_skipped, errors, X_WS_true) -> dict:
+    dt, dr = pose_difference(fit.X_AB, X_WS_true)
+    return {
         "X_WS": fit.X_AB.tolist(),
-        "grid_points": len(grid),
+        "grid_points": grid_points_count,
         "fit_points_used": int(len(fit.inliers)),
         "fit_points_rejected": int(len(fit.outliers)),
         "fit_rms_m": fit.rms_m,
@@ -161,25 +173,25 @@ def run_eye_to_hand(
             "max_distance_m": errors.max_distance_m,
         },
         "truth": {"X_WS_error_m": dt, "X_WS_error_rad": dr},
-        "eye_to_hand_s": time.perf_counter() - t0,
     }
-    results = Path(out_dir) / "results"
+
+
+def _write_results(results: Path, report: dict, X_WS: np.ndarray, session: _MarkerSession) -> None:
     results.mkdir(parents=True, exist_ok=True)
     atomic_write_text(
         results / "eye_to_hand.yaml",
         yaml.safe_dump(
             {
                 "schema": "scanner.eye_to_hand/1",
-                "X_WS": fit.X_AB.tolist(),
-                "static_camera": stereo_camera_to_dict(stereo_S),
-                "marker_p_FM": p_FM.tolist(),
+                "X_WS": X_WS.tolist(),
+                "static_camera": stereo_camera_to_dict(session.stereo_S),
+                "marker_p_FM": session.p_FM.tolist(),
             },
             sort_keys=False,
         ),
     )
     atomic_write_text(results / "eye_to_hand_report.json", json.dumps(report, indent=2) + "\n")
     atomic_write_text(results / "eye_to_hand_report.txt", eye_to_hand_text(report))
-    return report
 
 
 def eye_to_hand_text(report: dict) -> str:

@@ -1,0 +1,211 @@
+"""Hand-eye (eye-in-hand) calibration from robot poses and board detections. Pure numeric.
+
+Frames: W robot base, F flange, C left optical frame, R right optical frame, B board. The robot
+reports X_WF for every pose; PnP gives X_CB (OpenCV's solvePnP returns the board in the camera);
+the board is fixed in W, so X_WB = X_WF_i @ X_FC @ X_CB_i for every pose i.
+
+Pipeline (`calibrate_hand_eye`):
+1. board pose per robot pose by PnP (intrinsics from the stereo/mono calibration or given);
+2. refuse too few poses or degenerate motions (rotations about one axis only), saying why;
+3. X_FC by each of OpenCV's five AX = XB methods; the one that reprojects best seeds step 4;
+4. joint non-linear refinement of X_FC and X_WB minimising the reprojection error of every board
+   point in every camera (left and, for a stereo rig, right through X_RC) with a robust loss;
+5. per-pose residuals; the worst pose is dropped while it is an outlier (RMS above
+   `outlier_factor` x the median and above `outlier_min_px`), and step 4 is repeated.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from reconstruction.calibration.boards import BoardSpec
+from reconstruction.calibration.hand_eye import (
+    MotionSummary,
+    check_motions,
+    solve_every_method,
+    solve_hand_eye,
+)
+from reconstruction.calibration.observations import PoseObservation, board_pose
+from reconstruction.calibration.refine import (
+    pose_rms,
+    refine_on_board,
+    reprojection_residuals,
+    sensor_points,
+)
+from reconstruction.calibration.settings import CalibrationSettings
+from reconstruction.camera_model import PinholeCamera, StereoCamera
+from reconstruction.errors import ScannerError
+from reconstruction.transforms import mean_pose
+
+
+@dataclass(frozen=True, eq=False)
+class PoseResidual:
+    """One pose's outcome: RMS reprojection error (px) under the final X_FC and X_WB (NaN when
+    the board was not found) and its status: "used", "outlier" or "board not found"."""
+
+    name: str
+    rms_px: float
+    status: str
+
+
+@dataclass(frozen=True, eq=False)
+class HandEyeCalibration:
+    """Result of `calibrate_hand_eye`.
+
+    X_FC: refined hand-eye pose (left camera in flange); X_WB: refined board pose in the base.
+    opencv: X_FC of each OpenCV method alone, on the poses finally used; seed_method: the one
+    that seeded the refinement. board_scatter_m: per-axis standard deviation (m) of the board
+    origin mapped into W through each used pose (X_WF_i X_FC X_CB_i): the self-consistency a
+    user can check without ground truth. rms_px: reprojection RMS of the used poses with the
+    robot poses as reported; corrected_rms_px: after the small robot-pose corrections the
+    estimate implies (robot_corrections, (6,) per used pose: rotation vector rad, translation m).
+    """
+
+    X_FC: np.ndarray
+    X_WB: np.ndarray
+    rms_px: float
+    corrected_rms_px: float
+    opencv: dict[str, np.ndarray]
+    seed_method: str
+    residuals: tuple[PoseResidual, ...]
+    board_scatter_m: np.ndarray
+    board_scatter_max_m: float
+    motion: MotionSummary
+    X_CB: dict[str, np.ndarray] = field(default_factory=dict)
+    robot_corrections: dict[str, np.ndarray] = field(default_factory=dict)
+    opencv_failed: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def used(self) -> list[str]:
+        return [r.name for r in self.residuals if r.status == "used"]
+
+    @property
+    def outliers(self) -> list[str]:
+        return [r.name for r in self.residuals if r.status == "outlier"]
+
+    @property
+    def not_found(self) -> list[str]:
+        return [r.name for r in self.residuals if r.status == "board not found"]
+
+
+def _left_camera(cameras: StereoCamera | PinholeCamera) -> PinholeCamera:
+    return cameras.left if isinstance(cameras, StereoCamera) else cameras
+
+
+def require_poses(usable: int, total: int, missing: Sequence[str], need: int) -> None:
+    """ScannerError saying how many more poses to record, and why, when usable < need."""
+    if usable >= need:
+        return
+    why = f"; the board was not found in: {', '.join(missing)}" if missing else ""
+    raise ScannerError(
+        f"only {usable} of {total} poses are usable, calibration needs at least {need} (hand-eye "
+        f"needs 3, the outlier test {need - 3} more): record {need - usable} more pose(s) with "
+        f"the whole board in view{why}"
+    )
+
+
+def board_scatter(
+    X_WF: Sequence[np.ndarray], X_FC: np.ndarray, X_CB: Sequence[np.ndarray]
+) -> tuple[np.ndarray, float]:
+    """Per-axis std (m) and the largest distance from the mean (m) of the board origins in W."""
+    p = np.array([(Xf @ X_FC @ Xc)[:3, 3] for Xf, Xc in zip(X_WF, X_CB)])
+    return p.std(axis=0), float(np.linalg.norm(p - p.mean(axis=0), axis=1).max())
+
+
+def _seed(
+    board: BoardSpec,
+    obs: list[PoseObservation],
+    X_CB: list[np.ndarray],
+    cameras: StereoCamera | PinholeCamera,
+) -> tuple[dict[str, np.ndarray], str, np.ndarray]:
+    """Every OpenCV method; the seed is the one whose X_FC (with the mean board pose it implies)
+    reprojects best by the median pose RMS (robust to a few bad poses)."""
+    X_WF = [o.X_WF for o in obs]
+    sensors = sensor_points(board, obs, cameras)
+    estimates, failures = solve_every_method(X_WF, X_CB)
+    if not estimates:
+        raise ScannerError(
+            "hand-eye calibration failed: every OpenCV method failed ("
+            + "; ".join(failures.values())
+            + ")"
+        )
+    scores, boards = {}, {}
+    for name, X_FC in estimates.items():
+        X_WB = mean_pose([Xf @ X_FC @ Xc for Xf, Xc in zip(X_WF, X_CB)])
+        residuals = reprojection_residuals(sensors, np.array(X_WF), X_FC, X_WB)
+        boards[name] = X_WB
+        scores[name] = float(np.median(pose_rms(sensors, residuals, len(obs))))
+    best = min(scores, key=scores.get)
+    return estimates, best, boards[best]
+
+
+def calibrate_hand_eye(
+    board: BoardSpec,
+    observations: Sequence[PoseObservation],
+    cameras: StereoCamera | PinholeCamera,
+    settings: CalibrationSettings = CalibrationSettings(),
+) -> HandEyeCalibration:
+    """X_FC (and X_WB) from robot poses and board detections; see the module docstring."""
+    usable = [
+        o
+        for o in observations
+        if o.left is not None and len(o.left) >= settings.min_points_per_view
+    ]
+    missing = [o.name for o in observations if o not in usable]
+    require_poses(len(usable), len(observations), missing, settings.min_poses)
+    left = _left_camera(cameras)
+    X_CB = {o.name: board_pose(board, o.left, left) for o in usable}
+    motion = check_motions([o.X_WF for o in usable], settings)
+    _, seed_method, X_WB = _seed(board, usable, [X_CB[o.name] for o in usable], cameras)
+    X_FC = solve_hand_eye([o.X_WF for o in usable], [X_CB[o.name] for o in usable], seed_method)
+
+    inliers = list(usable)
+    outliers: list[PoseObservation] = []
+    while True:
+        refined = refine_on_board(board, inliers, cameras, X_FC, X_WB, settings)
+        X_FC, X_WB = refined.X_FC, refined.X_WB
+        rms = refined.pose_rms_px
+        limit = max(settings.outlier_min_px, settings.outlier_factor * float(np.median(rms)))
+        worst = int(np.argmax(rms))
+        if rms[worst] <= limit or len(inliers) <= settings.min_poses:
+            break
+        outliers.append(inliers.pop(worst))
+
+    # Final residuals of every pose (outliers too) under the final estimate.
+    sensors_all = sensor_points(board, usable, cameras)
+    rms_all = pose_rms(
+        sensors_all,
+        reprojection_residuals(sensors_all, np.array([o.X_WF for o in usable]), X_FC, X_WB),
+        len(usable),
+    )
+    by_name = {o.name: float(r) for o, r in zip(usable, rms_all)}
+    residuals = []
+    for o in observations:
+        if o.name in missing:
+            residuals.append(PoseResidual(o.name, float("nan"), "board not found"))
+        elif o in outliers:
+            residuals.append(PoseResidual(o.name, by_name[o.name], "outlier"))
+        else:
+            residuals.append(PoseResidual(o.name, by_name[o.name], "used"))
+    X_WF_in = [o.X_WF for o in inliers]
+    X_CB_in = [X_CB[o.name] for o in inliers]
+    opencv, opencv_failed = solve_every_method(X_WF_in, X_CB_in)
+    scatter, scatter_max = board_scatter(X_WF_in, X_FC, X_CB_in)
+    return HandEyeCalibration(
+        X_FC,
+        X_WB,
+        refined.rms_px,
+        refined.corrected_rms_px,
+        opencv,
+        seed_method,
+        tuple(residuals),
+        scatter,
+        scatter_max,
+        motion,
+        X_CB,
+        {o.name: xi for o, xi in zip(inliers, refined.corrections)},
+        opencv_failed,
+    )

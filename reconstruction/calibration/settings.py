@@ -1,0 +1,54 @@
+"""Thresholds of the calibration (the `solver:` section of a calibration configuration)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from reconstruction.checks import require_count, require_positive
+from reconstruction.errors import ScannerError
+from reconstruction.robust_loss import check_loss
+
+
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """Thresholds of the calibration (units in the names).
+
+    min_poses: hand-eye needs 3 poses (two motions about different axes); two more let the
+        outlier test compare each pose with the others.
+    min_motion_rotation_rad: relative rotations below this carry too little hand-eye information.
+    min_axis_spread_rad: the motions' rotation axes must differ by at least this much, otherwise
+        the translation along the common axis is unobservable (Tsai & Lenz 1989).
+    pixel_sigma_px: standard deviation of a detected board point (px), including model error.
+    robot_translation_sigma_m, robot_rotation_sigma_rad: accuracy of the reported flange poses
+        (0 and 0: trust them exactly). Defaults: a calibrated 6-axis arm of the RX60's class.
+    robust_loss, robust_scale: scipy least_squares loss and its scale in sigmas.
+    outlier_factor, outlier_min_px: a pose is an outlier when its RMS reprojection error exceeds
+        both factor x the median pose RMS and min_px.
+    fix_k3: estimate only k1, k2, p1, p2 (fewer parameters for short focal-range data).
+    """
+
+    min_poses: int = 5
+    min_points_per_view: int = 6
+    min_motion_rotation_rad: float = math.radians(2.0)
+    min_axis_spread_rad: float = math.radians(10.0)
+    pixel_sigma_px: float = 0.3
+    robot_translation_sigma_m: float = 0.0002
+    robot_rotation_sigma_rad: float = math.radians(0.02)
+    robust_loss: str = "soft_l1"
+    robust_scale: float = 3.0
+    outlier_factor: float = 4.0
+    outlier_min_px: float = 1.0
+    fix_k3: bool = False
+
+    def __post_init__(self) -> None:
+        if self.min_poses < 3:
+            raise ScannerError(
+                f"solver.min_poses: must be at least 3 (hand-eye needs 3), got {self.min_poses}"
+            )
+        require_count("solver", self, ("min_points_per_view",), minimum=4)
+        check_loss(self.robust_loss, "solver.robust_loss")
+        require_positive(
+            "solver", self, ("pixel_sigma_px", "robust_scale", "outlier_factor", "outlier_min_px")
+        )
+

@@ -1,0 +1,106 @@
+"""A reconstruction result as files (fused cloud, meshes) and as a plain record for reports
+(SI units; matrices as nested lists)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from reconstruction.pipeline import ReconstructionResult
+from reconstruction.surfaces import mesh_quality, save_cloud, save_mesh
+from reconstruction.transforms import pose_difference
+
+
+def _quality_record(quality, longest: int = 10) -> dict:
+    """Mesh topology for the report; only the longest boundary loops (the rim, big holes)."""
+    record = dict(vars(quality))
+    loops = record.pop("boundary_loops_m")
+    record["boundary_loops"] = len(loops)
+    record["longest_boundary_loops_m"] = list(loops[:longest])
+    return record
+
+
+def summary(result: ReconstructionResult) -> dict:
+    """A plain, YAML/JSON-ready record of the result (SI units; matrices as nested lists)."""
+    he = result.handeye
+    dt, dr = pose_difference(result.X_FC_nominal, result.X_FC)
+    out: dict = {
+        "views": [
+            {
+                "index": v.index,
+                "points": v.counts.after_outliers,
+                "X_WC": v.X_WC.tolist(),
+                "X_WC_kinematic": v.X_WC_kinematic.tolist(),
+            }
+            for v in result.views
+        ],
+        "skipped_views": [{"index": i, "reason": why} for i, why in result.skipped_views],
+        "edges": [
+            {
+                "source": e.source,
+                "target": e.target,
+                "kind": e.kind,
+                "fitness": e.fitness,
+                "inlier_rmse_m": e.inlier_rmse_m,
+                "status": e.status,
+                "residual_translation_m": e.residual_translation_m,
+                "residual_rotation_rad": e.residual_rotation_rad,
+            }
+            for e in result.edges
+        ],
+        "X_FC_nominal": result.X_FC_nominal.tolist(),
+        "X_FC": result.X_FC.tolist(),
+        "X_FC_change_translation_m": dt,
+        "X_FC_change_rotation_rad": dr,
+        "fused_points": len(result.fused),
+        "meshes": {
+            name: {**_quality_record(mesh_quality(m)), "filled_holes": m.filled_holes}
+            for name, m in result.meshes.items()
+        },
+        "timings_s": result.timings_s,
+        "notes": list(result.notes),
+    }
+    if he is not None:
+        out["handeye"] = {
+            "source": he.source,
+            "axxb": {
+                name: {
+                    "X_FC": s.X_FC.tolist(),
+                    "rms_translation_m": s.rms_translation_m,
+                    "rms_rotation_rad": s.rms_rotation_rad,
+                    "rejected_views": list(s.rejected_views),
+                    "error": s.error,
+                }
+                for name, s in he.axxb.items()
+            },
+        }
+        if he.refinement is not None:
+            r = he.refinement
+            out["handeye"]["refinement"] = {
+                "rms_before_m": r.rms_before_m,
+                "rms_after_m": r.rms_after_m,
+                "matches": r.n_matches,
+                "iterations": r.iterations,
+                "converged": r.converged,
+                "formal_std": r.formal_std.tolist(),
+                "weakest_mode": r.weakest_mode.tolist(),
+                "weakest_sensitivity": r.weakest_sensitivity,
+            }
+    return out
+
+
+def save_outputs(
+    result: ReconstructionResult, directory: Path, mesh_suffixes: Sequence[str] = (".ply",)
+) -> dict[str, Path]:
+    """Write fused_cloud.ply and mesh_<method><suffix> for each mesh and suffix; returns the
+    paths by name."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = {"fused_cloud": directory / "fused_cloud.ply"}
+    save_cloud(result.fused, paths["fused_cloud"])
+    for name, mesh in result.meshes.items():
+        for suffix in mesh_suffixes:
+            path = directory / f"mesh_{name}{suffix}"
+            save_mesh(mesh, path)
+            paths[f"mesh_{name}{suffix}"] = path
+    return paths

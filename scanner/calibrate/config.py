@@ -1,0 +1,83 @@
+"""What `scanner calibrate` uses (YAML: --config FILE): board, its placement, stations, solver,
+camera, cell, error model, eye-to-hand set-up and planner; every section has defaults."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from planners.planner import PlannerConfig
+from reconstruction.calibration.boards import BoardSpec
+from reconstruction.calibration.eye_to_hand import MarkerDetectionSettings
+from reconstruction.calibration.settings import CalibrationSettings
+from reconstruction.errors import ScannerError
+from robots.blinking_marker import MarkerConfig
+from robots.calibration_board import BoardPlacement
+from robots.static_camera import StaticCameraConfig
+from robots.truth import ErrorModel
+from robots.workcell import WorkcellConfig
+from scanner.calibrate.stations import StationConfig
+from scanner.config import CameraConfig
+from scanner.typed_yaml import load_yaml_file
+
+
+def _default_board() -> BoardSpec:
+    # 10 x 7 squares of 20 mm: one count even, one odd, so the board's orientation is unique;
+    # 200 x 140 mm fits both images at 0.35 m. A plain chessboard, not ChArUco: OpenCV's
+    # findChessboardCornersSB is unbiased to ~0.02 px on the renders, while ChArUco corners go
+    # through cornerSubPix, which is biased by up to ~0.2 px when edges align with pixel rows.
+    return BoardSpec(kind="chessboard", cols=10, rows=7, spacing_m=0.02)
+
+
+@dataclass(frozen=True)
+class EyeToHandConfig:
+    """Static camera, flange marker, the 3D grid the marker visits and the held-out test.
+
+    grid_*: box centre and full size (m) and spacing (m) of the calibration grid (KTH: 8, 27
+    and 125 points). held_out: random points in the same box for the evaluation (KTH: 200).
+    frames: images per point for temporal summation (KTH: 20). max_residual_m: the iterative
+    rejection drops points farther than this from the fit.
+    """
+
+    camera: StaticCameraConfig = field(default_factory=StaticCameraConfig)
+    marker: MarkerConfig = field(default_factory=MarkerConfig)
+    grid_center_m: tuple[float, float, float] = (0.50, 0.05, 0.50)
+    grid_size_m: tuple[float, float, float] = (0.2, 0.3, 0.2)
+    grid_spacing_m: float = 0.1
+    held_out: int = 100
+    frames: int = 20
+    detection: MarkerDetectionSettings = field(default_factory=MarkerDetectionSettings)
+    max_residual_m: float = 0.003
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.frames < 2:
+            raise ScannerError("eye_to_hand.frames: frame differencing needs at least 2 frames")
+        if self.held_out < 0:
+            raise ScannerError("eye_to_hand.held_out: must be >= 0")
+        if any(s < 0 for s in self.grid_size_m):
+            raise ScannerError("eye_to_hand.grid_size_m: sizes must be >= 0")
+
+
+@dataclass(frozen=True)
+class CalibrateConfig:
+    """Everything `scanner calibrate` uses; every section has defaults (YAML: --config FILE)."""
+
+    board: BoardSpec = field(default_factory=_default_board)
+    placement: BoardPlacement = field(default_factory=BoardPlacement)
+    stations: StationConfig = field(default_factory=StationConfig)
+    solver: CalibrationSettings = field(default_factory=CalibrationSettings)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    cell: WorkcellConfig = field(default_factory=WorkcellConfig)
+    error_model: ErrorModel = field(default_factory=ErrorModel)
+    eye_to_hand: EyeToHandConfig = field(default_factory=EyeToHandConfig)
+    # Stations are in open space in front of the robot: a smaller roadmap than a scan's does.
+    planner: PlannerConfig = field(default_factory=lambda: PlannerConfig(roadmap_milestones=400))
+    # Real hardware for eye-in-hand runs: 'package.module:factory' (see robots.drivers.Hardware);
+    # the board then stands where `placement` says. None: the Drake simulation.
+    driver: str | None = None
+
+
+def load_calibrate_config(path: Path | None) -> CalibrateConfig:
+    return CalibrateConfig() if path is None else load_yaml_file(CalibrateConfig, path)
+

@@ -1,0 +1,112 @@
+"""The calibration solver on board observations: intrinsics (unless given), stereo when there
+are right images, then hand-eye; the result as the calibration file's record."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from reconstruction.calibration.boards import BoardSpec
+from reconstruction.calibration.eye_in_hand import (
+    HandEyeCalibration,
+    calibrate_hand_eye,
+    require_poses,
+)
+from reconstruction.calibration.file import Calibration
+from reconstruction.calibration.intrinsics import (
+    StereoCalibration,
+    calibrate_camera,
+    calibrate_stereo,
+)
+from reconstruction.calibration.observations import PoseObservation
+from reconstruction.calibration.settings import CalibrationSettings
+from reconstruction.camera_model import PinholeCamera, StereoCamera
+from reconstruction.errors import ScannerError
+from scanner.typed_yaml import to_dict
+
+
+@dataclass(frozen=True, eq=False)
+class Solution:
+    """What one calibration produced (before it is written)."""
+
+    calibration: Calibration
+    hand_eye: HandEyeCalibration
+    stereo: StereoCalibration | None
+    camera_rms_px: float | None  # mono: calibrateCamera RMS; None when intrinsics were given
+    observations: tuple[PoseObservation, ...]
+    solve_s: float
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationRun:
+    out_dir: Path
+    calibration_file: Path
+    report: dict
+    solution: Solution
+
+
+def solve(
+    board: BoardSpec,
+    observations: list[PoseObservation],
+    image_size: tuple[int, int],
+    settings: CalibrationSettings,
+    intrinsics: StereoCamera | PinholeCamera | None = None,
+    source: str = "offline",
+) -> Solution:
+    """Intrinsics (unless given), then hand-eye; stereo when any pose has a right image."""
+    t0 = time.perf_counter()
+    is_stereo = any(o.right is not None for o in observations)
+    found = [o for o in observations if o.left is not None]
+    missing = [o.name for o in observations if o.left is None]
+    require_poses(len(found), len(observations), missing, settings.min_poses)
+    stereo_cal, camera_rms = None, None
+    if intrinsics is None:
+        if is_stereo:
+            stereo_cal = calibrate_stereo(board, observations, image_size, settings)
+            cameras: StereoCamera | PinholeCamera = stereo_cal.stereo
+        else:
+            mono = calibrate_camera(board, [o.left for o in found], image_size, settings)
+            cameras, camera_rms = mono.camera, mono.rms_px
+    else:
+        if is_stereo and not isinstance(intrinsics, StereoCamera):
+            raise ScannerError("stereo data needs stereo intrinsics (a stereo camera file)")
+        cameras = intrinsics
+        if not is_stereo and isinstance(intrinsics, StereoCamera):
+            cameras = intrinsics.left
+        size = cameras.left if isinstance(cameras, StereoCamera) else cameras
+        if (size.width, size.height) != tuple(image_size):
+            raise ScannerError(
+                f"the intrinsics are for {size.width}x{size.height} images, the images are "
+                f"{image_size[0]}x{image_size[1]}"
+            )
+    hand_eye = calibrate_hand_eye(board, observations, cameras, settings)
+    quality = {
+        "reprojection_rms_px": hand_eye.rms_px,
+        "reprojection_rms_after_robot_corrections_px": hand_eye.corrected_rms_px,
+        "stereo_rms_px": None if stereo_cal is None else stereo_cal.rms_px,
+        "poses_used": len(hand_eye.used),
+        "poses_outliers": hand_eye.outliers,
+        "poses_board_not_found": hand_eye.not_found,
+        "board_scatter_m": hand_eye.board_scatter_m.tolist(),
+        "hand_eye_seed": hand_eye.seed_method,
+    }
+    calibration = Calibration(
+        hand_eye.X_FC,
+        cameras if isinstance(cameras, StereoCamera) else None,
+        cameras.left if isinstance(cameras, StereoCamera) else cameras,
+        source,
+        "",
+        hand_eye.X_WB,
+        to_dict(board),
+        quality,
+    )
+    return Solution(
+        calibration,
+        hand_eye,
+        stereo_cal,
+        camera_rms,
+        tuple(observations),
+        time.perf_counter() - t0,
+    )
+

@@ -1,0 +1,116 @@
+"""The scan manifest (scan.yaml): written when a scan starts, read back once as a `SavedScan`.
+
+It holds the object, the whole configuration, the nominal camera model and X_FC the software
+used, the robot model, the viewpoints with their IK options, and the status; `CaptureStore`
+writes it atomically.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from planners.ik import Viewpoint
+from reconstruction.camera_model import StereoCamera, stereo_camera_from_dict, stereo_camera_to_dict
+from reconstruction.errors import ScannerError
+from reconstruction.transforms import check_pose
+from robots.rx60 import RX60, rx60_urdf
+from scanner.captures import CaptureStore
+from scanner.config import ScanConfig, scan_config_from_dict, scan_config_to_dict
+from scanner.viewpoints import PlannedView, ViewOption
+
+
+def views_to_manifest(views: list[PlannedView]) -> list[dict]:
+    return [
+        {
+            "index": v.index,
+            "direction": [float(x) for x in v.direction],
+            "p_WM": list(v.viewpoint.p_WM),
+            "p_WT": list(v.viewpoint.p_WT),
+            "roll_rad": v.viewpoint.roll_rad,
+            "options": [
+                {"roll_rad": o.roll_rad, "q_rad": [float(x) for x in o.q]} for o in v.options
+            ],
+        }
+        for v in views
+    ]
+
+
+def views_from_manifest(items: list[dict], where: str) -> list[PlannedView]:
+    try:
+        return [
+            PlannedView(
+                int(d["index"]),
+                np.array(d["direction"], float),
+                Viewpoint(tuple(d["p_WM"]), tuple(d["p_WT"]), float(d["roll_rad"])),
+                tuple(
+                    ViewOption(float(o["roll_rad"]), np.array(o["q_rad"], float))
+                    for o in d["options"]
+                ),
+            )
+            for d in items
+        ]
+    except (KeyError, TypeError, ValueError) as e:
+        raise ScannerError(f"{where}: malformed viewpoint list ({e})") from None
+
+
+def new_manifest(
+    config: ScanConfig,
+    stereo: StereoCamera,
+    X_FC: np.ndarray,
+    views: list[PlannedView],
+    plan_info: dict,
+) -> dict:
+    """The manifest of a new scan (the store adds schema, status and time stamps)."""
+    urdf = rx60_urdf(RX60())
+    return {
+        "object": config.object,
+        "config": scan_config_to_dict(config),
+        "camera": stereo_camera_to_dict(stereo),
+        "X_FC_nominal": X_FC.tolist(),
+        "robot": {
+            "model": "staubli_rx60",
+            "urdf_sha256": hashlib.sha256(urdf.encode()).hexdigest(),
+        },
+        "pose_count": len(views),
+        "viewpoints": views_to_manifest(views),
+        **plan_info,
+    }
+
+
+@dataclass(frozen=True, eq=False)
+class SavedScan:
+    """A scan directory read back: its store, the manifest, and what the manifest says, parsed
+    and validated once (configuration, camera model, nominal X_FC, viewpoints)."""
+
+    store: CaptureStore
+    manifest: dict
+    config: ScanConfig
+    stereo: StereoCamera
+    X_FC_nominal: np.ndarray
+    views: tuple[PlannedView, ...]
+
+    @property
+    def root(self) -> Path:
+        return self.store.root
+
+
+def open_scan(scan_dir: Path) -> SavedScan:
+    """The scan in `scan_dir`; ScannerError naming the file and field when it is not one."""
+    store = CaptureStore.open(scan_dir)
+    manifest = store.read_manifest()
+    where = str(store.manifest_path)
+    missing = [k for k in ("config", "camera", "X_FC_nominal", "viewpoints") if k not in manifest]
+    if missing:
+        raise ScannerError(f"{where}: not a scan manifest (missing {', '.join(missing)})")
+    return SavedScan(
+        store,
+        manifest,
+        scan_config_from_dict(manifest["config"], f"{where}:config"),
+        stereo_camera_from_dict(manifest["camera"], f"{where}:camera"),
+        check_pose(manifest["X_FC_nominal"], f"{where}:X_FC_nominal"),
+        tuple(views_from_manifest(manifest["viewpoints"], where)),
+    )
