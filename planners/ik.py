@@ -139,7 +139,8 @@ def camera_pose(viewpoint: Viewpoint, X_MC: np.ndarray) -> np.ndarray:
     """X_WC of the left optical frame when the rig centre M looks at the target.
 
     Aiming the rig centre (not the left camera) keeps the target where both cameras see it and
-    away from the left image's columns without disparity search (DESIGN.md).
+    away from the left image's columns without disparity search (those left of
+    min_disparity + num_disparities have no match in the right image).
     """
     X_WM = np.eye(4)
     X_WM[:3, :3] = look_at_rotation(

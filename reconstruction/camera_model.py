@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from reconstruction.checks import require_count, require_positive
 from reconstruction.errors import ScannerError
 from reconstruction.transforms import invert, make_pose
 from reconstruction.yaml_files import read_yaml
@@ -123,6 +124,28 @@ def project_points(camera: PinholeCamera, p_S: np.ndarray) -> np.ndarray:
     yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
     K = camera.K
     return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)
+
+
+@dataclass(frozen=True)
+class StereoDesign:
+    """A stereo rig as designed (what a configuration gives): image size, focal length,
+    baseline along the left camera's +x axis and OpenCV distortion, both cameras alike.
+    Defaults: the Bumblebee-like wrist rig of the SDU report."""
+
+    width_px: int = 1280
+    height_px: int = 960
+    focal_px: float = 1320.0
+    baseline_m: float = 0.12
+    distortion: tuple[float, float, float, float, float] = (-0.42, 0.19, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        require_count("camera", self, ("width_px", "height_px"), minimum=16)
+        require_positive("camera", self, ("focal_px", "baseline_m"))
+
+    def stereo_camera(self) -> StereoCamera:
+        return default_stereo_camera(
+            self.width_px, self.height_px, self.focal_px, self.baseline_m, self.distortion
+        )
 
 
 def default_stereo_camera(

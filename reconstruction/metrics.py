@@ -171,6 +171,21 @@ def evaluate_surface(
     return surface_metrics(d_rt, d_tr, observed)
 
 
+# The headline keys of a report against the truth (a surface's metrics, then the hand-eye's).
+SURFACE_METRIC_KEYS = (
+    "chamfer_mm",
+    "fscore_1mm",
+    "fscore_2mm",
+    "completeness_2mm",
+    "accuracy_p90_mm",
+    "chamfer_observed_mm",
+    "completeness_observed_2mm",
+    "fscore_observed_1mm",
+    "observed_fraction",
+)
+HANDEYE_ERROR_KEYS = ("handeye_error_mm", "handeye_error_deg")
+
+
 def handeye_error(X_FC_estimate: np.ndarray, X_FC_true: np.ndarray) -> dict[str, float]:
     """Translation of the camera origin (mm) and rotation angle (deg) between two X_FC."""
     dt, dr = pose_difference(X_FC_estimate, X_FC_true)

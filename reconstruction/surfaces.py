@@ -195,37 +195,89 @@ def clean_mesh(mesh: o3d.geometry.TriangleMesh, min_component_fraction: float) -
     mesh.remove_unreferenced_vertices()
 
 
+def _edges(triangles: np.ndarray) -> np.ndarray:
+    """(3M, 2) sorted vertex pairs of every triangle's edges, in triangle order."""
+    t = np.sort(np.asarray(triangles), axis=1)
+    return np.stack([t[:, [0, 1]], t[:, [1, 2]], t[:, [0, 2]]], axis=1).reshape(-1, 2)
+
+
 def _boundary_loop_count(mesh: o3d.geometry.TriangleMesh) -> int:
-    tris = np.sort(np.asarray(mesh.triangles), axis=1)
-    edges = np.vstack([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [0, 2]]])
-    unique_edges, uses = np.unique(edges, axis=0, return_counts=True)
+    unique_edges, uses = np.unique(_edges(mesh.triangles), axis=0, return_counts=True)
     return len(_boundary_loops(np.asarray(mesh.vertices), unique_edges[uses == 1]))
 
 
+def _manifold_patches(triangles: np.ndarray, added: np.ndarray) -> np.ndarray:
+    """Mask of the `added` triangles to keep: each connected patch of added triangles (one
+    filled hole) is dropped whole when one of its edges ends up in more than two triangles,
+    which happens where the hole touched another boundary."""
+    edges = _edges(triangles)
+    _, inverse, uses = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    edge_of = inverse.reshape(-1, 3)
+    index = np.flatnonzero(added)
+    # Added triangles sharing an edge belong to the same patch.
+    rows = np.repeat(np.arange(len(index)), 3)
+    incidence = coo_matrix(
+        (np.ones(len(rows)), (rows, edge_of[index].ravel())), shape=(len(index), len(uses))
+    ).tocsr()
+    _, patch = connected_components(incidence @ incidence.T, directed=False)
+    bad = np.zeros(patch.max() + 1 if len(patch) else 0, bool)
+    np.logical_or.at(bad, patch, (uses[edge_of[index]] > 2).any(axis=1))
+    keep = np.ones(len(triangles), bool)
+    keep[index] = ~bad[patch]
+    return keep
+
+
+def fill_small_holes(mesh: o3d.geometry.TriangleMesh, max_radius_m: float) -> int:
+    """In place: close the holes whose boundary fits in a sphere of max_radius_m (Open3D's
+    fill_holes, VTK's hole filler) unless closing one would make the mesh non-manifold.
+    Returns how many holes were closed."""
+    if max_radius_m <= 0 or not len(mesh.triangles):
+        return 0
+    before = _boundary_loop_count(mesh)
+    # fill_holes hands the mesh to VTK without copying: the tensor mesh must stay alive until
+    # the result is copied back (a temporary gave garbage vertices).
+    tensor_mesh = o3d.t.geometry.TriangleMesh.from_legacy(mesh)
+    closed = tensor_mesh.fill_holes(hole_size=max_radius_m).to_legacy()
+    del tensor_mesh
+    # VTK works in float32 and only adds triangles between existing boundary vertices: keep
+    # our float64 vertices (and colours) and take its triangles.
+    if len(closed.vertices) != len(mesh.vertices) or not np.allclose(
+        np.asarray(closed.vertices), np.asarray(mesh.vertices), rtol=0, atol=1e-6
+    ):
+        raise RuntimeError("fill_holes moved or added vertices")
+    triangles = np.asarray(closed.triangles)
+    original = np.asarray(mesh.triangles)
+    # VTK appends the new triangles after the existing ones.
+    if not np.array_equal(triangles[: len(original)], original):
+        raise RuntimeError("fill_holes changed the existing triangles")
+    added = np.arange(len(triangles)) >= len(original)
+    if added.any():
+        triangles = triangles[_manifold_patches(triangles, added)]
+    mesh.triangles = o3d.utility.Vector3iVector(triangles)
+    return before - _boundary_loop_count(mesh)
+
+
 def finish_mesh(name: str, mesh: o3d.geometry.TriangleMesh, config: SurfaceConfig) -> SurfaceMesh:
-    """Clean the mesh, then close its holes smaller than fill_holes_max_radius_m (Open3D's
-    fill_holes, VTK's hole filler); the count of closed holes goes with the result."""
+    """Clean the mesh and close its small holes; the count of closed holes goes with it."""
     clean_mesh(mesh, config.min_component_fraction)
-    filled = 0
-    if config.fill_holes_max_radius_m > 0 and len(mesh.triangles):
-        before = _boundary_loop_count(mesh)
-        # fill_holes hands the mesh to VTK without copying: the tensor mesh must stay alive
-        # until the result is copied back (a temporary gave garbage vertices).
-        tensor_mesh = o3d.t.geometry.TriangleMesh.from_legacy(mesh)
-        closed = tensor_mesh.fill_holes(hole_size=config.fill_holes_max_radius_m).to_legacy()
-        del tensor_mesh
-        # VTK works in float32 and only adds triangles between existing boundary vertices:
-        # keep our float64 vertices (and colours) and take its triangles.
-        if len(closed.vertices) != len(mesh.vertices) or not np.allclose(
-            np.asarray(closed.vertices), np.asarray(mesh.vertices), rtol=0, atol=1e-6
-        ):
-            raise RuntimeError("fill_holes moved or added vertices")
-        mesh.triangles = closed.triangles
-        filled = before - _boundary_loop_count(mesh)
+    filled = fill_small_holes(mesh, config.fill_holes_max_radius_m)
     return _from_open3d(name, mesh, filled)
 
 
-def poisson_mesh(fused: FusedCloud, config: SurfaceConfig, **_: object) -> SurfaceMesh:
+@dataclass(frozen=True, eq=False)
+class SurfaceInput:
+    """What a surface is built from: the fused cloud in W, the depth maps at their poses (TSDF),
+    and the region of interest and the caller's point filter (applied to the depth maps as they
+    were to the clouds)."""
+
+    fused: FusedCloud
+    depth_views: Sequence[DepthView] = ()
+    roi: RegionOfInterest = RegionOfInterest(shape="none")
+    remove_points: RemovePoints | None = None
+
+
+def poisson_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
+    fused = inputs.fused
     if len(fused) < 100:
         raise ScannerError(f"Poisson: only {len(fused)} fused points, nothing to mesh")
     pc = o3d_cloud(fused.points_W, fused.normals_W, fused.colors)
@@ -246,7 +298,8 @@ def poisson_mesh(fused: FusedCloud, config: SurfaceConfig, **_: object) -> Surfa
     return finish_mesh("poisson", mesh, config)
 
 
-def ball_pivoting_mesh(fused: FusedCloud, config: SurfaceConfig, **_: object) -> SurfaceMesh:
+def ball_pivoting_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
+    fused = inputs.fused
     pc = o3d_cloud(fused.points_W, fused.normals_W, fused.colors)
     mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(
         pc, o3d.utility.DoubleVector(list(config.ball_pivoting_radii_m))
@@ -276,20 +329,13 @@ def masked_depth(
     return depth
 
 
-def tsdf_mesh(
-    fused: FusedCloud,
-    config: SurfaceConfig,
-    depth_views: Sequence[DepthView] = (),
-    roi: RegionOfInterest | None = None,
-    remove_points: RemovePoints | None = None,
-) -> SurfaceMesh:
+def tsdf_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
     """Open3D tensor VoxelBlockGrid TSDF of the depth maps (the legacy ScalableTSDFVolume gave
     0 triangles with float depth in metres in a prototype); colours when the depth maps have
     them."""
-    del fused  # TSDF works on the depth maps; the argument keeps one signature for all methods
+    depth_views, roi, remove_points = inputs.depth_views, inputs.roi, inputs.remove_points
     if not depth_views:
         raise ScannerError("TSDF: no depth maps given (the views carry no DepthImage)")
-    roi = roi or RegionOfInterest(shape="none")
     with_color = all(v.depth.color is not None for v in depth_views)
     names = ("tsdf", "weight", "color") if with_color else ("tsdf", "weight")
     f32 = o3d.core.float32
@@ -327,7 +373,7 @@ def tsdf_mesh(
     return finish_mesh("tsdf", mesh, config)
 
 
-SURFACE_METHODS: dict[str, Callable[..., SurfaceMesh]] = {
+SURFACE_METHODS: dict[str, Callable[[SurfaceInput, SurfaceConfig], SurfaceMesh]] = {
     "poisson": poisson_mesh,
     "tsdf": tsdf_mesh,
     "ball_pivoting": ball_pivoting_mesh,
@@ -346,9 +392,8 @@ def build_surface(
         raise ScannerError(
             f"unknown surface method '{method}'; valid: {', '.join(SURFACE_METHODS)}"
         )
-    if method == "tsdf":
-        return tsdf_mesh(fused, config, depth_views, roi, remove_points)
-    return SURFACE_METHODS[method](fused, config)
+    inputs = SurfaceInput(fused, depth_views, roi or RegionOfInterest(shape="none"), remove_points)
+    return SURFACE_METHODS[method](inputs, config)
 
 
 def mesh_quality(mesh: SurfaceMesh) -> MeshQuality:

@@ -88,6 +88,15 @@ def rotation_angle_rad(R: np.ndarray) -> float:
     return float(np.linalg.norm(matrix_to_rotvec(R)))
 
 
+def rotation_angles_rad(R_AB: np.ndarray, R_AC: np.ndarray) -> np.ndarray:
+    """Angles (N,) of the rotations between each of R_AB (N, 3, 3) and R_AC (3, 3), precise near
+    0 like `rotation_angle_rad` (vectorised for many orientations at once)."""
+    R = np.einsum("kji,jl->kil", R_AB, R_AC)  # R_BC for every B
+    c = (np.trace(R, axis1=1, axis2=2) - 1) / 2
+    v = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1)
+    return np.arctan2(np.linalg.norm(v, axis=1) / 2, np.clip(c, -1.0, 1.0))
+
+
 def twist_to_pose(xi: np.ndarray) -> np.ndarray:
     """(w, v) -> 4x4 with R = exp([w]x), t = v (decoupled; see the module docstring)."""
     xi = np.asarray(xi, float)

@@ -17,7 +17,8 @@ BRACKET_SIZE_M = (0.06, 0.06, 0.025)
 # The optical centres sit 7.6 mm in front of the body so that a few mm of hand-eye error
 # never puts a simulated lens inside the rendered housing.
 LENS_TO_FLANGE_M = 0.080
-# The collision box encloses the visual model by at least this much (DESIGN: >= 10 mm).
+# The collision box encloses the visual model by at least this much (at least 10 mm, so that
+# cables and mounting screws the visual model leaves out stay inside it).
 COLLISION_MARGIN_M = 0.012
 
 

@@ -1,8 +1,8 @@
 """Staubli RX60 kinematic data and its URDF.
 
-Source: Staubli RX60 datasheet values as collected in shared/DESIGN.md (shoulder height 0.341 m,
-upper arm 0.290 m, forearm 0.310 m, wrist centre to flange 0.065 m, J2/J3 lateral offset 0.049 m,
-joint ranges and nominal maximum speeds). The lateral offset IS modelled: the elbow axis J3 is
+Source: Staubli RX60 datasheet values (shoulder height 0.341 m, upper arm 0.290 m, forearm
+0.310 m, wrist centre to flange 0.065 m, J2/J3 lateral offset 0.049 m, joint ranges and nominal
+maximum speeds). The lateral offset IS modelled: the elbow axis J3 is
 shifted by +0.049 m along the J2 axis (y of link 2), as on the real arm.
 
 Zero configuration: the arm points straight up, every joint axis of J2/J3/J5 along +y, J1/J4/J6

@@ -7,13 +7,12 @@ posed at its TRUE joint positions so the marker on its flange is where the real 
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from reconstruction.camera_model import StereoCamera, default_stereo_camera
+from reconstruction.camera_model import StereoCamera, StereoDesign
 from reconstruction.errors import ScannerError
 from robots.blinking_marker import BlinkingMarker
 from robots.sim_camera import SimulatedStereoCamera
@@ -22,32 +21,24 @@ from robots.workcell import Workcell
 
 
 @dataclass(frozen=True)
-class StaticCameraConfig:
+class StaticCameraConfig(StereoDesign):
     """Where the static rig stands (rig centre, m) and the point it looks at (m), and
     its optics (a VGA machine-vision pair). A cell camera can afford a wider baseline than the
     wrist rig: 0.25 m keeps the depth error of a 0.05 px disparity error near 0.3 mm at 1 m
     (Z^2 / (f b))."""
 
-    position_m: tuple[float, float, float] = (1.15, 0.35, 0.75)
-    look_at_m: tuple[float, float, float] = (0.50, 0.05, 0.50)
     width_px: int = 640
     height_px: int = 480
     focal_px: float = 640.0
     baseline_m: float = 0.25
     distortion: tuple[float, float, float, float, float] = (-0.12, 0.05, 0.0, 0.0, 0.0)
+    position_m: tuple[float, float, float] = (1.15, 0.35, 0.75)
+    look_at_m: tuple[float, float, float] = (0.50, 0.05, 0.50)
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if np.linalg.norm(np.subtract(self.look_at_m, self.position_m)) < 0.1:
             raise ScannerError("static camera: look_at_m must be at least 0.1 m from position_m")
-        if self.width_px < 16 or self.height_px < 16 or not self.focal_px > 0:
-            raise ScannerError("static camera: image size >= 16 px and a positive focal length")
-        if not (math.isfinite(self.baseline_m) and self.baseline_m > 0):
-            raise ScannerError("static camera: baseline_m must be positive")
-
-    def stereo(self) -> StereoCamera:
-        return default_stereo_camera(
-            self.width_px, self.height_px, self.focal_px, self.baseline_m, self.distortion
-        )
 
     @property
     def X_WS(self) -> np.ndarray:

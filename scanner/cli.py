@@ -36,47 +36,39 @@ def _add_scan_parser(sub) -> None:
     )
     scan.add_argument(
         "--object",
-        default=None,
         help=f"built-in object ({BUILTIN_HELP}), a mesh file (.obj/.ply/.stl), or the name of "
         "a mesh in a folder of $SCANNER_MESH_PATH; default vase",
     )
     scan.add_argument(
         "--size",
         type=positive_float,
-        default=None,
         help="largest extent of the object in metres (default 0.2)",
     )
-    scan.add_argument("--views", type=int, default=None, help="number of views (default 24)")
+    scan.add_argument("--views", type=int, help="number of views (default 24)")
     scan.add_argument(
         "--radius",
         type=positive_float,
-        default=None,
         help="distance of the rig from the scan centre in metres (default 0.5)",
     )
     scan.add_argument(
         "--out",
         type=Path,
-        default=None,
         help="scan directory to create (default scans/OBJECT-TIMESTAMP)",
     )
-    scan.add_argument("--seed", type=int, default=None, help="seed of the simulated error model")
-    scan.add_argument("--config", type=Path, default=None, help="scan configuration YAML")
+    scan.add_argument("--seed", type=int, help="seed of the simulated error model")
+    scan.add_argument("--config", type=Path, help="scan configuration YAML")
     scan.add_argument(
         "--calibration",
         type=Path,
-        default=None,
         help="calibration file from `scanner calibrate` (stereo model and hand-eye X_FC)",
     )
     scan.add_argument(
         "--driver",
-        default=None,
         metavar="MODULE:FACTORY",
         help="scan with real hardware: factory(config) returns robots.drivers.Hardware "
         "(default: the Drake simulation)",
     )
-    scan.add_argument(
-        "--resume", type=Path, default=None, metavar="DIR", help="continue an interrupted scan"
-    )
+    scan.add_argument("--resume", type=Path, metavar="DIR", help="continue an interrupted scan")
     scan.add_argument(
         "--force", action="store_true", help="replace an existing scan directory given with --out"
     )
@@ -102,19 +94,16 @@ def _add_reconstruct_parser(sub) -> None:
     reconstruct.add_argument(
         "--config",
         type=Path,
-        default=None,
         help="processing YAML (stereo:, reconstruction:, ...); default: the scan's own settings",
     )
     reconstruct.add_argument(
         "--calibration",
         type=Path,
-        default=None,
         help="use this calibration's stereo model and X_FC instead of the scan's",
     )
     reconstruct.add_argument(
         "--out",
         type=Path,
-        default=None,
         help="results folder (default SCAN_DIR/results, or results-N when that holds one already)",
     )
     reconstruct.add_argument(
@@ -126,7 +115,6 @@ def _add_reconstruct_parser(sub) -> None:
     )
     reconstruct.add_argument(
         "--formats",
-        default=None,
         help="mesh file formats, comma separated from ply,obj,stl (default ply)",
     )
 
@@ -199,8 +187,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from reconstruction.calibration.file import load_calibration
-    from scanner.captures import CaptureStore
-    from scanner.config import scan_config_from_dict
+    from scanner.manifest import open_scan
     from scanner.reconstruct import (
         free_results_dir,
         holds_reconstruction,
@@ -208,14 +195,11 @@ def _reconstruct(args: argparse.Namespace) -> int:
         run_reconstruct,
     )
 
-    store = CaptureStore.open(args.scan_dir)
+    scan = open_scan(args.scan_dir)
     if args.config is not None:
         processing = load_processing_config(args.config)
     else:
-        manifest = store.read_manifest()
-        processing = scan_config_from_dict(
-            manifest.get("config", {}), "scan.yaml:config"
-        ).processing
+        processing = scan.config.processing
     rec = processing.reconstruction
     if args.no_icp:
         rec = replace(rec, icp=replace(rec.icp, enabled=False))
@@ -235,7 +219,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
             f"{args.out}: holds a reconstruction already; choose another --out, or --force to "
             "replace it"
         )
-    run = run_reconstruct(args.scan_dir, processing, out, X_FC, stereo)
+    run = run_reconstruct(scan, processing, out, X_FC, stereo)
     r = run.report
     print(
         f"reconstruct: {r['captures_used']} captures used, {len(r['captures_skipped'])} "

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from planners.planner import PlannerConfig
-from reconstruction.camera_model import StereoCamera, default_stereo_camera
+from reconstruction.camera_model import StereoDesign
 from reconstruction.checks import require_count, require_non_negative, require_positive
 from reconstruction.errors import ScannerError
 from reconstruction.pipeline import ReconstructionConfig
@@ -20,27 +20,6 @@ from robots.truth import ErrorModel
 from robots.workcell import WorkcellConfig
 from scanner.typed_yaml import from_dict, load_yaml_file, to_dict
 from scanner.viewpoints import ViewpointConfig
-
-
-@dataclass(frozen=True)
-class CameraConfig:
-    """The nominal stereo camera (what the software believes; the simulator's truth equals it
-    unless a calibration file says otherwise)."""
-
-    width_px: int = 1280
-    height_px: int = 960
-    focal_px: float = 1320.0
-    baseline_m: float = 0.12
-    distortion: tuple[float, float, float, float, float] = (-0.42, 0.19, 0.0, 0.0, 0.0)
-
-    def __post_init__(self) -> None:
-        require_count("camera", self, ("width_px", "height_px"), minimum=16)
-        require_positive("camera", self, ("focal_px", "baseline_m"))
-
-    def stereo_camera(self) -> StereoCamera:
-        return default_stereo_camera(
-            self.width_px, self.height_px, self.focal_px, self.baseline_m, self.distortion
-        )
 
 
 @dataclass(frozen=True)
@@ -85,7 +64,9 @@ class ProcessingConfig:
 class ScanConfig:
     object: str = "vase"
     cell: WorkcellConfig = field(default_factory=WorkcellConfig)
-    camera: CameraConfig = field(default_factory=CameraConfig)
+    # The nominal stereo camera (what the software believes; the simulator's truth equals it
+    # unless a calibration file says otherwise).
+    camera: StereoDesign = field(default_factory=StereoDesign)
     views: ViewpointConfig = field(default_factory=ViewpointConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     error_model: ErrorModel = field(default_factory=ErrorModel)

@@ -1,7 +1,6 @@
 """Human-readable results: plots (PNG, rendered headless) and results/summary.md.
 
-Millimetres and degrees appear only here, at the printing edge; report.json stays in the keys'
-own units (the `_mm`/`_deg` metric names the tools read, SI elsewhere).
+Units follow scanner.units: accuracy figures in mm and degrees, everything else SI.
 """
 
 from __future__ import annotations
@@ -15,7 +14,11 @@ matplotlib.use("Agg")  # headless: no display on CI or robot PCs
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from reconstruction.metrics import TriangleSurface, distances_to_mesh  # noqa: E402
+from reconstruction.metrics import (  # noqa: E402
+    SURFACE_METRIC_KEYS,
+    TriangleSurface,
+    distances_to_mesh,
+)
 from reconstruction.pipeline import ReconstructionResult  # noqa: E402
 from reconstruction.transforms import pose_difference  # noqa: E402
 
@@ -109,16 +112,6 @@ def write_summary(report: dict, out: Path) -> Path:
             f"- robot motion: {_fmt(report.get('robot_motion_s', 0.0), 1)} s,"
             f" wall time: {_fmt(report.get('wall_s', 0.0), 1)} s",
         ]
-    keys = [
-        "chamfer_mm",
-        "fscore_1mm",
-        "fscore_2mm",
-        "completeness_2mm",
-        "accuracy_p90_mm",
-        "chamfer_observed_mm",
-        "completeness_observed_2mm",
-        "observed_fraction",
-    ]
     if "chamfer_mm" in report:
         lines += [
             "",
@@ -127,7 +120,7 @@ def write_summary(report: dict, out: Path) -> Path:
             "| metric | value |",
             "|---|---|",
         ]
-        lines += [f"| {k} | {_fmt(report[k])} |" for k in keys if k in report]
+        lines += [f"| {k} | {_fmt(report[k])} |" for k in SURFACE_METRIC_KEYS if k in report]
         if "observed_fraction" in report:
             lines += [
                 "",

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planners.ik import Viewpoint
+from reconstruction.checks import require_choice, require_count, require_positive
 from reconstruction.errors import ScannerError
 from scanner.sampling import farthest_point_sample, fibonacci_directions
 
@@ -46,17 +47,13 @@ class ViewpointConfig:
     def __post_init__(self) -> None:
         if self.count < 1:
             raise ScannerError(f"views.count: at least 1 view is needed, got {self.count}")
-        if not (math.isfinite(self.radius_m) and self.radius_m > 0):
-            raise ScannerError(f"views.radius_m: must be positive, got {self.radius_m}")
-        if self.distribution not in DISTRIBUTIONS:
-            raise ScannerError(
-                f"views.distribution: '{self.distribution}' is not one of "
-                f"{', '.join(DISTRIBUTIONS)}"
-            )
+        require_positive("views", self, ("radius_m", "replace_within_rad"))
+        require_choice("views", "distribution", self.distribution, DISTRIBUTIONS)
         if not -math.pi / 2 <= self.elevation_min_rad < self.elevation_max_rad <= math.pi / 2:
             raise ScannerError("views.elevation_*_rad: need -pi/2 <= min < max <= pi/2")
-        if self.candidates < self.count or self.roll_candidates < 1 or self.options_per_view < 1:
-            raise ScannerError("views: candidates >= count, roll_candidates >= 1, options >= 1")
+        require_count("views", self, ("roll_candidates", "options_per_view"))
+        require_count("views", self, ("lloyd_iterations",), minimum=0)
+        require_count("views", self, ("candidates",), minimum=self.count)
 
 
 @dataclass(frozen=True, eq=False)

@@ -15,7 +15,6 @@ Prints one JSON line (millimetres and degrees, for people):
 from __future__ import annotations
 
 import json
-import math
 import os
 import tempfile
 from pathlib import Path
@@ -33,19 +32,19 @@ def main() -> None:
         e2h = run_eye_to_hand(config, Path(tmp) / "eye_to_hand")
     report, truth = run.report, run.report["truth"]
     out = {
-        "handeye_error_mm": round(truth["handeye_error_m"] * 1000, 4),
-        "handeye_error_deg": round(math.degrees(truth["handeye_error_rad"]), 5),
+        "handeye_error_mm": round(truth["handeye_error_mm"], 4),
+        "handeye_error_deg": round(truth["handeye_error_deg"], 5),
     }
     for name, e in truth["opencv"].items():
-        out[f"{name}_error_mm"] = round(e["handeye_error_m"] * 1000, 4)
-        out[f"{name}_error_deg"] = round(math.degrees(e["handeye_error_rad"]), 5)
+        out[f"{name}_error_mm"] = round(e["handeye_error_mm"], 4)
+        out[f"{name}_error_deg"] = round(e["handeye_error_deg"], 5)
     out.update(
         {
             "reprojection_rms_px": round(report["stereo_rms_px"], 4),
             "handeye_reprojection_rms_px": round(report["reprojection_rms_px"], 4),
             "poses": report["poses_used"],
-            "eye_to_hand_mean_mm": round(e2h["held_out"]["mean_distance_m"] * 1000, 4),
-            "eye_to_hand_std_mm": round(e2h["held_out"]["std_distance_m"] * 1000, 4),
+            "eye_to_hand_mean_mm": round(e2h["held_out"]["mean_distance_mm"], 4),
+            "eye_to_hand_std_mm": round(e2h["held_out"]["std_distance_mm"], 4),
             "eye_to_hand_points": e2h["held_out"]["count"],
             "calibrate_s": round(report["calibrate_s"], 2),
             "solve_s": round(report["solve_s"], 2),

@@ -1,4 +1,4 @@
-"""Benchmark of the planning layer on the default work cell and object (issue 3).
+"""Benchmark of the planning layer on the default work cell and object.
 
 Prints ONE JSON line. Queries are pairs of reachable look-at configurations for viewpoints on a
 0.5 m sphere around the object centre (fixed seed): from a random IK solution of one viewpoint to

@@ -15,26 +15,15 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
+from reconstruction.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
+from reconstruction.pipeline import VARIANTS, variant_config
 from scanner.captures import CaptureStore
-from scanner.config import ScanConfig, with_overrides
-from scanner.reconstruct import ProcessingConfig, run_reconstruct
+from scanner.config import ProcessingConfig, ScanConfig, with_overrides
+from scanner.reconstruct import run_reconstruct
 from scanner.scan import run_scan
 
 BUNNY = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "stanford-bunny.obj"
-KEYS = (
-    "chamfer_mm",
-    "fscore_1mm",
-    "fscore_2mm",
-    "completeness_2mm",
-    "accuracy_p90_mm",
-    "handeye_error_mm",
-    "handeye_error_deg",
-    "chamfer_observed_mm",
-    "completeness_observed_2mm",
-    "fscore_observed_1mm",
-    "observed_fraction",
-)
-VARIANTS = {"pose_only": (False, False), "icp": (True, False), "corrected": (True, True)}
+KEYS = (*SURFACE_METRIC_KEYS, *HANDEYE_ERROR_KEYS)
 
 
 def main() -> None:
@@ -60,14 +49,9 @@ def main() -> None:
             )
             scan_dir = run_scan(config, scan_dir or Path(tmp) / "bunny").scan_dir
         out: dict = {"views": len(CaptureStore.open(scan_dir).captured_indices())}
-        for name, (icp, handeye) in VARIANTS.items():
-            base = ProcessingConfig()
-            rec = base.reconstruction
-            rec = replace(
-                rec,
-                icp=replace(rec.icp, enabled=icp),
-                handeye=replace(rec.handeye, enabled=handeye),
-            )
+        base = ProcessingConfig()
+        for name in VARIANTS:
+            rec = variant_config(base.reconstruction, name)
             run = run_reconstruct(
                 scan_dir, replace(base, reconstruction=rec), Path(tmp) / f"results-{name}"
             )

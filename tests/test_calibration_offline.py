@@ -88,7 +88,7 @@ def test_wrong_euler_convention_shows_in_the_scatter(tmp_path):
         options.board, pose_format("open3dv", euler="XYZ"), intrinsics=options.intrinsics
     )
     run = calibrate_directory(root, wrong, out_dir=tmp_path)
-    assert max(run.report["board_scatter_m"]) > 5e-3
+    assert max(run.report["board_scatter_mm"]) > 5.0
 
 
 def _copy(root, tmp_path, names):

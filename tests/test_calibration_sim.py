@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from report_units import keys_breaking_the_unit_rule
 
 from reconstruction.calibration.eye_in_hand import calibrate_hand_eye
 from reconstruction.calibration.file import load_calibration
@@ -39,7 +40,7 @@ def test_hand_eye_matches_the_truth(sim_calibration):
     truth, extra = load_truth(sim_calibration.out_dir / "truth.yaml")
     dt, dr = pose_difference(sim_calibration.solution.hand_eye.X_FC, truth.X_FC)
     assert dt < HANDEYE_TOL_M and dr < HANDEYE_TOL_RAD
-    assert report["truth"]["handeye_error_m"] == pytest.approx(dt)
+    assert report["truth"]["handeye_error_mm"] == pytest.approx(1e3 * dt)  # reports: mm
     # The nominal X_FC is 3 mm and 1 deg off (the error model): calibration removed that.
     nominal_dt, nominal_dr = pose_difference(camera_tool.nominal_X_FC(), truth.X_FC)
     assert nominal_dt == pytest.approx(3e-3, rel=0.01)
@@ -48,12 +49,18 @@ def test_hand_eye_matches_the_truth(sim_calibration):
     assert pose_difference(X_WB, np.array(extra["X_WB"]))[0] < 1e-3
 
 
+def test_calibration_reports_follow_the_unit_rule(sim_calibration):
+    assert keys_breaking_the_unit_rule(sim_calibration.report) == []
+    text = (sim_calibration.out_dir / "results" / "report.txt").read_text()
+    assert "printed in mm and degrees" in text and "against the simulator's truth" in text
+
+
 def test_stereo_calibration(sim_calibration):
     report = sim_calibration.report
     assert report["stereo_rms_px"] <= STEREO_RMS_TOL_PX
     truth = report["truth"]
     assert max(truth["focal_error_px"]) < 1.0  # of 1320 px
-    assert truth["baseline_error_m"] < 0.1e-3
+    assert truth["baseline_error_mm"] < 0.1
     assert report["poses_used"] == report["poses"] == 20
     assert report["poses_outliers"] == [] and report["poses_board_not_found"] == []
 
@@ -100,7 +107,7 @@ def test_eye_to_hand_held_out_error(tmp_path):
     report = run_eye_to_hand(CalibrateConfig(), tmp_path)
     held_out = report["held_out"]
     assert held_out["count"] >= 100
-    assert held_out["mean_distance_m"] <= EYE_TO_HAND_MEAN_TOL_M
+    assert held_out["mean_distance_mm"] <= 1e3 * EYE_TO_HAND_MEAN_TOL_M
     assert report["fit_points_used"] >= 27
     assert (tmp_path / "results" / "eye_to_hand.yaml").is_file()
 
@@ -171,7 +178,7 @@ def test_an_interrupted_calibration_resumes_without_repeating_captures(tmp_path)
     for i, data in before.items():
         assert (out / "captures" / f"{i:04d}" / "left.png").read_bytes() == data
     assert run.report["poses"] == 10
-    assert run.report["truth"]["handeye_error_m"] < 0.5e-3
+    assert run.report["truth"]["handeye_error_mm"] < 0.5
 
 
 def test_resume_of_a_folder_that_is_not_a_calibration(tmp_path):

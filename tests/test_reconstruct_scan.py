@@ -11,11 +11,14 @@ from dataclasses import replace
 import numpy as np
 import open3d as o3d
 import pytest
+from report_units import keys_breaking_the_unit_rule
 from scipy.spatial import cKDTree
 
+from reconstruction.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
+from reconstruction.pipeline import variant_config
 from scanner.captures import CaptureStore
-from scanner.config import ScanConfig, with_overrides
-from scanner.reconstruct import ProcessingConfig, run_reconstruct
+from scanner.config import ProcessingConfig, ScanConfig, with_overrides
+from scanner.reconstruct import run_reconstruct
 from scanner.scan import run_scan
 
 pytestmark = pytest.mark.slow
@@ -41,15 +44,8 @@ def runs(scan_dir, tmp_path_factory):
     before = _hashes(scan_dir)
     base = ProcessingConfig()
     out = {}
-    for name, icp, handeye in (
-        ("corrected", True, True),
-        ("icp", True, False),
-        ("pose_only", False, False),
-    ):
-        rec = base.reconstruction
-        rec = replace(
-            rec, icp=replace(rec.icp, enabled=icp), handeye=replace(rec.handeye, enabled=handeye)
-        )
+    for name in ("corrected", "icp", "pose_only"):
+        rec = variant_config(base.reconstruction, name)
         results = tmp_path_factory.mktemp(name)
         out[name] = run_reconstruct(scan_dir, replace(base, reconstruction=rec), results)
     out["hashes_before"] = before
@@ -102,16 +98,13 @@ def test_captures_are_untouched_and_a_second_run_is_the_same(runs, scan_dir, tmp
 def test_results_are_written(runs):
     out = runs["corrected"].results_dir
     report = json.loads((out / "report.json").read_text())
-    for key in (
-        "chamfer_mm",
-        "fscore_1mm",
-        "fscore_2mm",
-        "completeness_2mm",
-        "accuracy_p90_mm",
-        "handeye_error_mm",
-        "handeye_error_deg",
-    ):
+    for key in (*SURFACE_METRIC_KEYS, *HANDEYE_ERROR_KEYS):
         assert isinstance(report[key], float)
+    assert keys_breaking_the_unit_rule(report) == []
+    # Every stage is timed, the writing of the results too.
+    stages = report["reconstruction_stage_s"]
+    assert {"stereo", "reconstruct", "evaluate", "write"} <= set(stages)
+    assert all(seconds > 0 for seconds in stages.values())
     for name in (
         "fused_cloud.ply",
         "mesh_poisson.ply",

@@ -161,6 +161,16 @@ def test_holes_below_the_data_resolution_are_closed_and_counted_larger_ones_kept
     assert np.abs(np.linalg.norm(mesh.vertices - OBJECT_CENTER_W, axis=1) - 0.05).max() < 1e-9
 
 
+def test_a_filled_hole_that_would_make_the_mesh_non_manifold_stays_open():
+    from reconstruction.surfaces import _manifold_patches
+
+    # Two existing triangles share edge (0, 1). Patch A (two added triangles) puts a third
+    # triangle on that edge; patch B (one added triangle) touches nothing existing twice.
+    triangles = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4], [1, 4, 5], [6, 7, 8]])
+    added = np.array([False, False, True, True, True])
+    assert _manifold_patches(triangles, added).tolist() == [True, True, False, False, True]
+
+
 @pytest.mark.parametrize("suffix", [".ply", ".obj", ".stl"])
 def test_meshes_are_written_in_metres(tmp_path, suffix):
     sphere = o3d.geometry.TriangleMesh.create_sphere(0.05, 20).translate(OBJECT_CENTER_W)

@@ -25,7 +25,7 @@ def _twist_exp(w, q, theta):
 
 
 def poe_flange(q):
-    """Space-frame product of exponentials written from the DESIGN.md numbers only."""
+    """Space-frame product of exponentials written from the datasheet numbers only."""
     h, a2, d, a3, l6 = 0.341, 0.290, 0.049, 0.310, 0.065
     axes = [
         ((0, 0, 1), (0, 0, 0)),

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from reconstruction.camera_model import StereoCamera
+from reconstruction.checks import require_count, require_positive
 from reconstruction.errors import ScannerError
 from reconstruction.transforms import make_pose, transform_points
 
@@ -44,8 +45,11 @@ class MarkerDetectionSettings:
     saturation_grey: float = 60.0
 
     def __post_init__(self) -> None:
-        if self.box_filter_px < 1 or not 0 < self.accept_fraction <= 1:
-            raise ScannerError("marker detection: box_filter_px >= 1 and 0 < accept_fraction <= 1")
+        section = "eye_to_hand.detection"
+        require_count(section, self, ("box_filter_px", "min_pixels"))
+        require_positive(section, self, ("difference_threshold", "saturation_grey"))
+        if not 0 < self.accept_fraction <= 1:
+            raise ScannerError(f"{section}.accept_fraction: must be in (0, 1]")
 
 
 @dataclass(frozen=True)

@@ -27,23 +27,21 @@ def add_calibrate_parser(sub) -> None:
 def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
     # Names are validated by the calibration code (one-line errors listing the valid ones), so
     # no argparse `choices` here.
-    calibrate.add_argument("--out", type=Path, default=None, help="calibration directory")
-    calibrate.add_argument("--config", type=Path, default=None, help="calibration YAML file")
+    calibrate.add_argument("--out", type=Path, help="calibration directory")
+    calibrate.add_argument("--config", type=Path, help="calibration YAML file")
     calibrate.add_argument("--force", action="store_true", help="replace an existing --out")
     calibrate.add_argument(
         "--resume",
         type=Path,
-        default=None,
         metavar="DIR",
         help="finish an interrupted eye-in-hand run: capture the stations it lacks, then solve",
     )
-    calibrate.add_argument("--seed", type=int, default=None, help="seed of the simulated errors")
+    calibrate.add_argument("--seed", type=int, help="seed of the simulated errors")
     calibrate.add_argument(
-        "--stations", type=int, default=None, help="number of board views to take (default 20)"
+        "--stations", type=int, help="number of board views to take (default 20)"
     )
     calibrate.add_argument(
         "--driver",
-        default=None,
         metavar="MODULE:FACTORY",
         help="eye-in-hand on real hardware (see `scan --driver`); the board stands where the "
         "configuration's placement says",
@@ -52,28 +50,25 @@ def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
 
 def _add_board_arguments(calibrate: argparse.ArgumentParser) -> None:
     board = calibrate.add_argument_group("board (simulation default: chessboard 10x7, 0.02 m)")
-    board.add_argument("--board", default=None, help="charuco, chessboard or circles_asymmetric")
+    board.add_argument("--board", help="charuco, chessboard or circles_asymmetric")
     board.add_argument(
         "--board-size",
-        default=None,
         metavar="COLSxROWS",
         help="squares (chessboard, charuco) or circles (circle grid) across x down, e.g. 7x11",
     )
     board.add_argument(
         "--board-spacing",
         type=positive_float,
-        default=None,
         metavar="M",
         help="square size, or circle distance along a row, in metres",
     )
     board.add_argument(
         "--marker-size",
         type=positive_float,
-        default=None,
         metavar="M",
         help="ChArUco marker size in metres",
     )
-    board.add_argument("--dictionary", default=None, help="ArUco dictionary, e.g. DICT_5X5_100")
+    board.add_argument("--dictionary", help="ArUco dictionary, e.g. DICT_5X5_100")
     board.add_argument(
         "--inverted", action="store_true", help="white pattern on black (e.g. white dots)"
     )
@@ -84,37 +79,29 @@ def _add_offline_arguments(calibrate: argparse.ArgumentParser) -> None:
     offline.add_argument(
         "--offline",
         type=Path,
-        default=None,
         metavar="DIR",
         help="a calibration directory made by this tool, or images with robot pose files "
         "(same name, .txt) or left/ and right/ image folders",
     )
     offline.add_argument(
         "--pose-convention",
-        default=None,
         help="robot pose preset: open3dv, yaskawa, fanuc, kuka, staubli, abb, ur, matrix_m, "
         "matrix_mm",
     )
     offline.add_argument(
         "--pose-layout",
-        default=None,
         help="matrix, xyz_euler, euler_xyz, xyz_quat, xyz_wxyz or xyz_rotvec",
     )
-    offline.add_argument(
-        "--euler", default=None, help="Euler sequence: xyz (extrinsic) ... XYZ (intrinsic)"
-    )
-    offline.add_argument("--length-unit", default=None, help="m or mm")
-    offline.add_argument("--angle-unit", default=None, help="deg or rad")
+    offline.add_argument("--euler", help="Euler sequence: xyz (extrinsic) ... XYZ (intrinsic)")
+    offline.add_argument("--length-unit", help="m or mm")
+    offline.add_argument("--angle-unit", help="deg or rad")
     offline.add_argument(
         "--inverse-poses", action="store_true", help="the files hold the base in the flange"
     )
-    offline.add_argument(
-        "--pose-file", type=Path, default=None, help="one pose per line, in image name order"
-    )
+    offline.add_argument("--pose-file", type=Path, help="one pose per line, in image name order")
     offline.add_argument(
         "--intrinsics",
         type=Path,
-        default=None,
         help="known intrinsics: calibration/stereo YAML, or text (K row by row, k1 k2 p1 p2 k3)",
     )
 
@@ -122,7 +109,5 @@ def _add_offline_arguments(calibrate: argparse.ArgumentParser) -> None:
 def _add_eye_to_hand_arguments(calibrate: argparse.ArgumentParser) -> None:
     e2h = calibrate.add_argument_group("eye-to-hand (static camera, marker on the flange)")
     e2h.add_argument("--eye-to-hand", action="store_true", help="calibrate a static camera")
-    e2h.add_argument("--held-out", type=int, default=None, help="random test points (default 100)")
-    e2h.add_argument(
-        "--grid-spacing", type=positive_float, default=None, metavar="M", help="grid spacing (m)"
-    )
+    e2h.add_argument("--held-out", type=int, help="random test points (default 100)")
+    e2h.add_argument("--grid-spacing", type=positive_float, metavar="M", help="grid spacing (m)")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import math
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -16,6 +15,7 @@ from scanner.calibrate.config import CalibrateConfig, load_calibrate_config
 from scanner.calibrate.eye_in_hand import run_eye_in_hand
 from scanner.calibrate.eye_to_hand import run_eye_to_hand
 from scanner.calibrate.offline import OfflineOptions, calibrate_directory
+from scanner.calibrate.report import error_text
 from scanner.progress import ProgressBar
 
 
@@ -88,17 +88,14 @@ def _print_summary(report: dict, out: Path, calibration_file: Path) -> None:
     print(line)
     if report.get("stereo_rms_px") is not None:
         print(f"stereo RMS reprojection: {report['stereo_rms_px']:.3f} px")
-    scatter = max(report["board_scatter_m"]) * 1000
+    scatter = max(report["board_scatter_mm"])
     print(
         f"hand-eye RMS reprojection: {report['reprojection_rms_px']:.3f} px; "
         f"board-in-base scatter {scatter:.2f} mm (largest axis std)"
     )
     truth = report.get("truth")
     if truth:
-        print(
-            f"error against the simulator's truth: {truth['handeye_error_m'] * 1000:.3f} mm, "
-            f"{math.degrees(truth['handeye_error_rad']):.4f} deg"
-        )
+        print(f"error against the simulator's truth: {error_text(truth)}")
     print(f"calibration file: {calibration_file}")
     print(f"report: {out / 'results' / 'report.txt'}")
 
@@ -117,7 +114,7 @@ def run_calibrate_command(args: argparse.Namespace) -> int:
         print(
             f"eye-to-hand: {report['fit_points_used']} grid points used, "
             f"{report['fit_points_rejected']} rejected; held-out error over {h['count']} points: "
-            f"mean {h['mean_distance_m'] * 1000:.3f} mm, std {h['std_distance_m'] * 1000:.3f} mm"
+            f"mean {h['mean_distance_mm']:.3f} mm, std {h['std_distance_mm']:.3f} mm"
         )
         print(f"report: {out / 'results' / 'eye_to_hand_report.txt'}")
         return 0

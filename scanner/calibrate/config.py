@@ -10,6 +10,7 @@ from planners.planner import PlannerConfig
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.eye_to_hand import MarkerDetectionSettings
 from reconstruction.calibration.settings import CalibrationSettings
+from reconstruction.camera_model import StereoDesign
 from reconstruction.errors import ScannerError
 from robots.blinking_marker import MarkerConfig
 from robots.calibration_board import BoardPlacement
@@ -17,7 +18,6 @@ from robots.static_camera import StaticCameraConfig
 from robots.truth import ErrorModel
 from robots.workcell import WorkcellConfig
 from scanner.calibrate.stations import StationConfig
-from scanner.config import CameraConfig
 from scanner.typed_yaml import load_yaml_file
 
 
@@ -67,7 +67,7 @@ class CalibrateConfig:
     placement: BoardPlacement = field(default_factory=BoardPlacement)
     stations: StationConfig = field(default_factory=StationConfig)
     solver: CalibrationSettings = field(default_factory=CalibrationSettings)
-    camera: CameraConfig = field(default_factory=CameraConfig)
+    camera: StereoDesign = field(default_factory=StereoDesign)
     cell: WorkcellConfig = field(default_factory=WorkcellConfig)
     error_model: ErrorModel = field(default_factory=ErrorModel)
     eye_to_hand: EyeToHandConfig = field(default_factory=EyeToHandConfig)

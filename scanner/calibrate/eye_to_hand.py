@@ -4,7 +4,6 @@ the flange driven over a 3D grid, a rigid fit with outlier rejection and held-ou
 from __future__ import annotations
 
 import json
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -32,6 +31,7 @@ from robots.static_camera import StaticStereoCamera
 from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.eye_in_hand import MoveFn, PlannedMover, build_world
 from scanner.captures import atomic_write_text
+from scanner.units import deg, mm
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,7 +57,7 @@ class _MarkerSession:
         marker = BlinkingMarker(self.settings.marker, cache_dir() / "markers")
         self.world = build_world(config, extras=(marker,), with_board=False)
         sim = self.world.sim
-        self.stereo_S = self.settings.camera.stereo()
+        self.stereo_S = self.settings.camera.stereo_camera()
         self.camera = StaticStereoCamera(
             sim.workcell,
             sim.truth,
@@ -161,18 +161,18 @@ def _report(fit, grid_points_count, fit_skipped, test_skipped, errors, X_WS_true
         "grid_points": grid_points_count,
         "fit_points_used": int(len(fit.inliers)),
         "fit_points_rejected": int(len(fit.outliers)),
-        "fit_rms_m": fit.rms_m,
+        "fit_rms_mm": mm(fit.rms_m),
         "skipped_grid": fit_skipped,
         "skipped_held_out": test_skipped,
         "held_out": {
             "count": errors.count,
-            "mean_abs_xyz_m": list(errors.mean_abs_xyz_m),
-            "std_abs_xyz_m": list(errors.std_abs_xyz_m),
-            "mean_distance_m": errors.mean_distance_m,
-            "std_distance_m": errors.std_distance_m,
-            "max_distance_m": errors.max_distance_m,
+            "mean_abs_xyz_mm": [mm(v) for v in errors.mean_abs_xyz_m],
+            "std_abs_xyz_mm": [mm(v) for v in errors.std_abs_xyz_m],
+            "mean_distance_mm": mm(errors.mean_distance_m),
+            "std_distance_mm": mm(errors.std_distance_m),
+            "max_distance_mm": mm(errors.max_distance_m),
         },
-        "truth": {"X_WS_error_m": dt, "X_WS_error_rad": dr},
+        "truth": {"X_WS_error_mm": mm(dt), "X_WS_error_deg": deg(dr)},
     }
 
 
@@ -195,18 +195,17 @@ def _write_results(results: Path, report: dict, X_WS: np.ndarray, session: _Mark
 
 
 def eye_to_hand_text(report: dict) -> str:
-    mm = 1000.0
     h = report["held_out"]
-    a, s = np.array(h["mean_abs_xyz_m"]) * mm, np.array(h["std_abs_xyz_m"]) * mm
+    a, s = h["mean_abs_xyz_mm"], h["std_abs_xyz_mm"]
     lines = [
         "eye-to-hand calibration (printed in mm and degrees)",
         f"grid: {report['fit_points_used']} points used, {report['fit_points_rejected']} "
-        f"rejected, fit RMS {report['fit_rms_m'] * mm:.3f} mm",
+        f"rejected, fit RMS {report['fit_rms_mm']:.3f} mm",
         f"held-out points: {h['count']}",
         f"  |x| {a[0]:.3f} +- {s[0]:.3f}   |y| {a[1]:.3f} +- {s[1]:.3f}   "
         f"|z| {a[2]:.3f} +- {s[2]:.3f} mm",
-        f"  distance {h['mean_distance_m'] * mm:.3f} +- {h['std_distance_m'] * mm:.3f} mm "
-        f"(max {h['max_distance_m'] * mm:.3f} mm; the KTH report: ~8 mm mean)",
+        f"  distance {h['mean_distance_mm']:.3f} +- {h['std_distance_mm']:.3f} mm "
+        f"(max {h['max_distance_mm']:.3f} mm; the KTH report: ~8 mm mean)",
     ]
     for name in ("skipped_grid", "skipped_held_out"):
         if report[name]:
@@ -215,7 +214,7 @@ def eye_to_hand_text(report: dict) -> str:
     t = report.get("truth")
     if t:
         lines.append(
-            f"against the simulator's truth: X_WS {t['X_WS_error_m'] * mm:.3f} mm, "
-            f"{math.degrees(t['X_WS_error_rad']):.4f} deg"
+            f"against the simulator's truth: X_WS {t['X_WS_error_mm']:.3f} mm, "
+            f"{t['X_WS_error_deg']:.4f} deg"
         )
     return "\n".join(lines) + "\n"

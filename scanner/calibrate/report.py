@@ -1,5 +1,5 @@
-"""Calibration reports: report.json (SI units, as the calibration file), report.txt (mm and
-degrees, for people), and the errors against the simulator's truth."""
+"""Calibration reports: report.json and report.txt (accuracy figures in mm and degrees, poses in
+metres: the rule of scanner.units), and the errors against the simulator's truth."""
 
 from __future__ import annotations
 
@@ -11,20 +11,20 @@ import numpy as np
 
 from reconstruction.calibration.file import save_calibration
 from reconstruction.camera_model import StereoCamera
-from reconstruction.transforms import matrix_to_rotvec, pose_difference
+from reconstruction.metrics import handeye_error
+from reconstruction.transforms import matrix_to_rotvec
 from scanner.calibrate.solve import Solution
 from scanner.captures import atomic_write_text
+from scanner.units import deg, mm
 
 CALIBRATION_FILE = "calibration.yaml"
 
 
 def truth_errors(solution: Solution, truth_X_FC: np.ndarray, truth_stereo: StereoCamera) -> dict:
-    """Errors against the simulator's truth (SI units): ours and each OpenCV method alone."""
-    dt, dr = pose_difference(solution.hand_eye.X_FC, truth_X_FC)
-    out = {"handeye_error_m": dt, "handeye_error_rad": dr, "opencv": {}}
+    """Errors against the simulator's truth: ours and each OpenCV method alone."""
+    out = {**handeye_error(solution.hand_eye.X_FC, truth_X_FC), "opencv": {}}
     for name, X in solution.hand_eye.opencv.items():
-        mt, mr = pose_difference(X, truth_X_FC)
-        out["opencv"][name] = {"handeye_error_m": mt, "handeye_error_rad": mr}
+        out["opencv"][name] = handeye_error(X, truth_X_FC)
     cams = solution.calibration.stereo
     if cams is not None:
         out["focal_error_px"] = [
@@ -35,7 +35,7 @@ def truth_errors(solution: Solution, truth_X_FC: np.ndarray, truth_stereo: Stere
             float(np.linalg.norm(c.K[:2, 2] - t.K[:2, 2]))
             for c, t in ((cams.left, truth_stereo.left), (cams.right, truth_stereo.right))
         ]
-        out["baseline_error_m"] = abs(cams.baseline_m - truth_stereo.baseline_m)
+        out["baseline_error_mm"] = mm(abs(cams.baseline_m - truth_stereo.baseline_m))
     return out
 
 
@@ -49,8 +49,8 @@ def build_report(solution: Solution, truth: dict | None, extra: dict | None = No
                 "name": r.name,
                 "status": r.status,
                 "rms_px": None if math.isnan(r.rms_px) else r.rms_px,
-                "robot_correction_m": None if xi is None else float(np.linalg.norm(xi[3:])),
-                "robot_correction_rad": None if xi is None else float(np.linalg.norm(xi[:3])),
+                "robot_correction_mm": None if xi is None else mm(np.linalg.norm(xi[3:])),
+                "robot_correction_deg": None if xi is None else deg(np.linalg.norm(xi[:3])),
             }
         )
     report = {
@@ -64,8 +64,8 @@ def build_report(solution: Solution, truth: dict | None, extra: dict | None = No
         "stereo_rms_px": None if solution.stereo is None else solution.stereo.rms_px,
         "camera_rms_px": solution.camera_rms_px,
         "per_pose": per_pose,
-        "board_scatter_m": he.board_scatter_m.tolist(),
-        "board_scatter_max_m": he.board_scatter_max_m,
+        "board_scatter_mm": [mm(s) for s in he.board_scatter_m],
+        "board_scatter_max_mm": mm(he.board_scatter_max_m),
         "motion": {
             "max_rotation_rad": he.motion.max_rotation_rad,
             "axis_spread_rad": he.motion.axis_spread_rad,
@@ -84,8 +84,7 @@ def build_report(solution: Solution, truth: dict | None, extra: dict | None = No
 
 
 def report_text(report: dict) -> str:
-    """The report for people: millimetres and degrees (the files hold metres and radians)."""
-    mm, deg = 1000.0, 180.0 / math.pi
+    """The report for people (mm and degrees, as report.json)."""
     lines = [
         f"calibration from {report['source']} (printed in mm and degrees)",
         f"poses: {report['poses_used']} used of {report['poses']}",
@@ -103,45 +102,46 @@ def report_text(report: dict) -> str:
         f"as reported, {report['reprojection_rms_after_robot_corrections_px']:.3f} px after "
         "the small robot-pose corrections"
     )
-    s = np.array(report["board_scatter_m"]) * mm
+    s = report["board_scatter_mm"]
     lines.append(
         f"board-in-base scatter (std x y z): {s[0]:.2f} {s[1]:.2f} {s[2]:.2f} mm, "
-        f"max {report['board_scatter_max_m'] * mm:.2f} mm"
+        f"max {report['board_scatter_max_mm']:.2f} mm"
     )
     X = np.array(report["X_FC"])
     rv = matrix_to_rotvec(X[:3, :3])
     lines.append(
-        f"X_FC: t = ({', '.join(f'{v * mm:.2f}' for v in X[:3, 3])}) mm, rotation vector = "
-        f"({', '.join(f'{v * deg:.3f}' for v in rv)}) deg; seed method {report['hand_eye_seed']}"
+        f"X_FC: t = ({', '.join(f'{mm(v):.2f}' for v in X[:3, 3])}) mm, rotation vector = "
+        f"({', '.join(f'{deg(v):.3f}' for v in rv)}) deg; seed method {report['hand_eye_seed']}"
     )
     lines.append("per pose (RMS px, robot correction mm / deg):")
     for p in report["per_pose"]:
         rms = "   -  " if p["rms_px"] is None else f"{p['rms_px']:6.3f}"
         corr = ""
-        if p["robot_correction_m"] is not None:
-            corr = (
-                f"  {p['robot_correction_m'] * mm:.3f} mm / "
-                f"{p['robot_correction_rad'] * deg:.4f} deg"
-            )
+        if p["robot_correction_mm"] is not None:
+            corr = f"  {p['robot_correction_mm']:.3f} mm / {p['robot_correction_deg']:.4f} deg"
         lines.append(f"  {p['name']:>12}  {rms}  {p['status']}{corr}")
     truth = report.get("truth")
     if truth:
-        lines.append(
-            f"against the simulator's truth: hand-eye {truth['handeye_error_m'] * mm:.3f} mm, "
-            f"{truth['handeye_error_rad'] * deg:.4f} deg"
-        )
-        for name, e in truth["opencv"].items():
-            lines.append(
-                f"  OpenCV {name:<10} alone: {e['handeye_error_m'] * mm:.3f} mm, "
-                f"{e['handeye_error_rad'] * deg:.4f} deg"
-            )
-        if "focal_error_px" in truth:
-            lines.append(
-                f"  focal length error {max(truth['focal_error_px']):.3f} px, principal point "
-                f"{max(truth['principal_point_error_px']):.3f} px, baseline "
-                f"{truth['baseline_error_m'] * mm:.3f} mm"
-            )
+        lines += _truth_lines(truth)
     return "\n".join(lines) + "\n"
+
+
+def error_text(errors: dict) -> str:
+    """'0.110 mm, 0.0084 deg' of a handeye_error record."""
+    return f"{errors['handeye_error_mm']:.3f} mm, {errors['handeye_error_deg']:.4f} deg"
+
+
+def _truth_lines(truth: dict) -> list[str]:
+    lines = [f"against the simulator's truth: hand-eye {error_text(truth)}"]
+    for name, e in truth["opencv"].items():
+        lines.append(f"  OpenCV {name:<10} alone: {error_text(e)}")
+    if "focal_error_px" in truth:
+        lines.append(
+            f"  focal length error {max(truth['focal_error_px']):.3f} px, principal point "
+            f"{max(truth['principal_point_error_px']):.3f} px, baseline "
+            f"{truth['baseline_error_mm']:.3f} mm"
+        )
+    return lines
 
 
 def write_results(out_dir: Path, solution: Solution, report: dict) -> Path:

@@ -21,8 +21,9 @@ import numpy as np
 from planners.ik import Viewpoint, camera_pose, rig_centre_offset
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.camera_model import StereoCamera, project_points
+from reconstruction.checks import require_count, require_non_negative
 from reconstruction.errors import ScannerError
-from reconstruction.transforms import invert, transform_points
+from reconstruction.transforms import invert, rotation_angles_rad, transform_points
 from scanner.sampling import farthest_point_sample
 
 ReachableFn = Callable[[Viewpoint], list[np.ndarray]]
@@ -53,8 +54,12 @@ class StationConfig:
             raise ScannerError("stations: need 0 < distance_min_m <= distance_max_m")
         if not 0 <= self.max_tilt_rad < math.pi / 2:
             raise ScannerError("stations.max_tilt_rad: must be in [0, pi/2)")
-        if self.candidates < self.count:
-            raise ScannerError("stations.candidates: must be at least stations.count")
+        require_count("stations", self, ("candidates",), minimum=self.count)
+        require_non_negative(
+            "stations",
+            self,
+            ("max_roll_rad", "target_jitter_m", "image_margin_px", "position_weight_rad_per_m"),
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,8 +179,7 @@ def plan_stations(
     weight = config.position_weight_rad_per_m
 
     def distances_from(i: int) -> np.ndarray:
-        cos = np.clip((np.einsum("kij,ij->k", R, R[i]) - 1) / 2, -1, 1)
-        return np.arccos(cos) + weight * np.linalg.norm(p - p[i], axis=1)
+        return rotation_angles_rad(R, R[i]) + weight * np.linalg.norm(p - p[i], axis=1)
 
     chosen = farthest_point_sample(config.count, int(np.argmin(tilts)), distances_from)
     stations = tuple(
