@@ -330,9 +330,7 @@ def reconstruct_views(
                 graph = optimise_pose_graph(X_WC, registered.kept_edges, config.pose_graph)
             X_WC = list(graph.X_WC)
 
-    fused, meshes, surface_notes = build_surfaces(
-        views, clouds, X_WC, config, remove_points, timer
-    )
+    fused, meshes, surface_notes = build_surfaces(views, clouds, X_WC, config, remove_points, timer)
     notes += surface_notes
     view_results = tuple(
         ViewResult(

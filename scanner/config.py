@@ -53,9 +53,7 @@ class ProcessingConfig:
     def __post_init__(self) -> None:
         bad = [f for f in self.mesh_formats if f not in MESH_SUFFIXES]
         if bad:
-            raise ScannerError(
-                f"processing.mesh_formats: {bad} not in {', '.join(MESH_SUFFIXES)}"
-            )
+            raise ScannerError(f"processing.mesh_formats: {bad} not in {', '.join(MESH_SUFFIXES)}")
         require_non_negative("processing", self, ("remove_margin_m",))
         require_count("processing", self, ("metric_samples",), minimum=1000)
 

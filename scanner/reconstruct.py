@@ -188,9 +188,7 @@ def _write_results(result, processing: ProcessingConfig, truth, out: Path) -> di
         "X_FC_change_mm": 1e3 * details["X_FC_change_translation_m"],
         "X_FC_change_deg": math.degrees(details["X_FC_change_rotation_rad"]),
         "outputs": {k: str(p.relative_to(out)) for k, p in paths.items()},
-        "plots": write_plots(
-            result, out, truth[1] if truth else None, processing.primary_surface
-        ),
+        "plots": write_plots(result, out, truth[1] if truth else None, processing.primary_surface),
     }
 
 

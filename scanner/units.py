@@ -19,4 +19,3 @@ def mm(length_m: float) -> float:
 
 def deg(angle_rad: float) -> float:
     return math.degrees(float(angle_rad))
-

@@ -119,4 +119,3 @@ def check_motions(X_WF: Sequence[np.ndarray], settings: CalibrationSettings) -> 
             "along that axis is then unobservable: add poses that tilt about another axis"
         )
     return summary
-

@@ -117,4 +117,3 @@ def calibrate_stereo(
     return StereoCalibration(
         stereo, float(rms), left, right, tuple(names), np.asarray(view_errors, float)
     )
-

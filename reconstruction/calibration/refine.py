@@ -72,9 +72,7 @@ def reprojection_residuals(
     return out
 
 
-def pose_rms(
-    sensors: list[SensorPoints], residuals: list[np.ndarray], n_poses: int
-) -> np.ndarray:
+def pose_rms(sensors: list[SensorPoints], residuals: list[np.ndarray], n_poses: int) -> np.ndarray:
     sq = np.zeros(n_poses)
     count = np.zeros(n_poses)
     for s, r in zip(sensors, residuals):
@@ -190,4 +188,3 @@ def refine_on_board(
 
 def _rms(residuals: list[np.ndarray]) -> float:
     return float(np.sqrt(np.concatenate([np.sum(r * r, axis=1) for r in residuals]).mean()))
-

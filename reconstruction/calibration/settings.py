@@ -51,4 +51,3 @@ class CalibrationSettings:
         require_positive(
             "solver", self, ("pixel_sigma_px", "robust_scale", "outlier_factor", "outlier_min_px")
         )
-

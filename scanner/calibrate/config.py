@@ -80,4 +80,3 @@ class CalibrateConfig:
 
 def load_calibrate_config(path: Path | None) -> CalibrateConfig:
     return CalibrateConfig() if path is None else load_yaml_file(CalibrateConfig, path)
-

@@ -161,7 +161,6 @@ def _store_observations(
     return observations, size
 
 
-
 def _truth_of(root: Path) -> tuple[np.ndarray, StereoCamera] | None:
     path = root / "truth.yaml"
     if not path.is_file():

@@ -151,4 +151,3 @@ def write_results(out_dir: Path, solution: Solution, report: dict) -> Path:
     atomic_write_text(results / "report.json", json.dumps(report, indent=2) + "\n")
     atomic_write_text(results / "report.txt", report_text(report))
     return path
-

@@ -109,4 +109,3 @@ def solve(
         tuple(observations),
         time.perf_counter() - t0,
     )
-
