@@ -195,24 +195,38 @@ def clean_mesh(mesh: o3d.geometry.TriangleMesh, min_component_fraction: float) -
     mesh.remove_unreferenced_vertices()
 
 
-def _edges(triangles: np.ndarray) -> np.ndarray:
-    """(3M, 2) sorted vertex pairs of every triangle's edges, in triangle order."""
-    t = np.sort(np.asarray(triangles), axis=1)
-    return np.stack([t[:, [0, 1]], t[:, [1, 2]], t[:, [0, 2]]], axis=1).reshape(-1, 2)
+@dataclass(frozen=True, eq=False)
+class _EdgeUse:
+    """The distinct edges of a triangle mesh (K, 2), how many triangles use each (K,), and the
+    distinct edge of each triangle's three edges (M, 3)."""
+
+    edges: np.ndarray
+    uses: np.ndarray
+    of_triangle: np.ndarray
+
+
+def _edge_use(triangles: np.ndarray) -> _EdgeUse:
+    t = np.sort(np.asarray(triangles, np.int64), axis=1)
+    pairs = np.stack([t[:, [0, 1]], t[:, [1, 2]], t[:, [0, 2]]], axis=1).reshape(-1, 2)
+    n = int(t.max()) + 1 if len(t) else 1
+    # One integer per edge: np.unique on a 1-D key is ~20x faster than on rows.
+    keys, inverse, uses = np.unique(
+        pairs[:, 0] * n + pairs[:, 1], return_inverse=True, return_counts=True
+    )
+    return _EdgeUse(np.stack([keys // n, keys % n], axis=1), uses, inverse.reshape(-1, 3))
 
 
 def _boundary_loop_count(mesh: o3d.geometry.TriangleMesh) -> int:
-    unique_edges, uses = np.unique(_edges(mesh.triangles), axis=0, return_counts=True)
-    return len(_boundary_loops(np.asarray(mesh.vertices), unique_edges[uses == 1]))
+    use = _edge_use(mesh.triangles)
+    return len(_boundary_loops(np.asarray(mesh.vertices), use.edges[use.uses == 1]))
 
 
 def _manifold_patches(triangles: np.ndarray, added: np.ndarray) -> np.ndarray:
     """Mask of the `added` triangles to keep: each connected patch of added triangles (one
     filled hole) is dropped whole when one of its edges ends up in more than two triangles,
     which happens where the hole touched another boundary."""
-    edges = _edges(triangles)
-    _, inverse, uses = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
-    edge_of = inverse.reshape(-1, 3)
+    use = _edge_use(triangles)
+    edge_of, uses = use.of_triangle, use.uses
     index = np.flatnonzero(added)
     # Added triangles sharing an edge belong to the same patch.
     rows = np.repeat(np.arange(len(index)), 3)
@@ -398,9 +412,9 @@ def build_surface(
 
 def mesh_quality(mesh: SurfaceMesh) -> MeshQuality:
     m = mesh.to_open3d()
-    tris = np.sort(np.asarray(mesh.triangles), axis=1)
-    edges = np.vstack([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [0, 2]]])
-    unique_edges, uses = np.unique(edges, axis=0, return_counts=True)
+    tris = np.asarray(mesh.triangles)
+    use = _edge_use(tris)
+    uses = use.uses
     n_components = len(np.asarray(m.cluster_connected_triangles()[1])) if len(tris) else 0
     return MeshQuality(
         len(mesh.vertices),
@@ -410,7 +424,7 @@ def mesh_quality(mesh: SurfaceMesh) -> MeshQuality:
         int(np.sum(uses > 2)),
         bool(len(tris) and np.all(uses == 2) and m.is_vertex_manifold()),
         float(m.get_surface_area()) if len(tris) else 0.0,
-        _boundary_loops(np.asarray(mesh.vertices), unique_edges[uses == 1]),
+        _boundary_loops(np.asarray(mesh.vertices), use.edges[uses == 1]),
     )
 
 
