@@ -6,8 +6,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+from reconstruction.mesh_topology import mesh_quality
 from reconstruction.pipeline import ReconstructionResult
-from reconstruction.surfaces import mesh_quality, save_cloud, save_mesh
+from reconstruction.surfaces import save_cloud, save_mesh
 from reconstruction.transforms import pose_difference
 
 

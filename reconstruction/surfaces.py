@@ -15,8 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import open3d as o3d
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from reconstruction.checks import require_count, require_non_negative, require_positive
@@ -28,6 +26,7 @@ from reconstruction.filtering import (
     apply_hook,
     o3d_cloud,
 )
+from reconstruction.mesh_topology import clean_mesh, fill_small_holes
 from reconstruction.transforms import invert, rotate_vectors, transform_points
 from reconstruction.views import DepthImage
 
@@ -124,22 +123,6 @@ class SurfaceMesh:
         return mesh
 
 
-@dataclass(frozen=True)
-class MeshQuality:
-    """Topology of a mesh: an edge used by one triangle is a boundary (hole or rim) edge."""
-
-    n_vertices: int
-    n_triangles: int
-    n_components: int
-    boundary_edges: int
-    non_manifold_edges: int
-    watertight: bool
-    area_m2: float
-    # Perimeters (m) of the closed loops of boundary edges, longest first: the rim of the
-    # observed region, then any holes.
-    boundary_loops_m: tuple[float, ...]
-
-
 @dataclass(frozen=True, eq=False)
 class DepthView:
     """A depth map with the camera pose to integrate it at."""
@@ -179,96 +162,6 @@ def fuse_clouds(
         np.clip(np.round(np.asarray(pc.colors) * 255), 0, 255).astype(np.uint8),
         n,
     )
-
-
-def clean_mesh(mesh: o3d.geometry.TriangleMesh, min_component_fraction: float) -> None:
-    """In place: degenerate and duplicated faces, non-manifold edges, and small components."""
-    mesh.remove_degenerate_triangles()
-    mesh.remove_duplicated_triangles()
-    mesh.remove_duplicated_vertices()
-    mesh.remove_non_manifold_edges()
-    if len(mesh.triangles):
-        labels, counts, _ = mesh.cluster_connected_triangles()
-        labels, counts = np.asarray(labels), np.asarray(counts)
-        small = counts < min_component_fraction * counts.max()
-        mesh.remove_triangles_by_mask(small[labels])
-    mesh.remove_unreferenced_vertices()
-
-
-@dataclass(frozen=True, eq=False)
-class _EdgeUse:
-    """The distinct edges of a triangle mesh (K, 2), how many triangles use each (K,), and the
-    distinct edge of each triangle's three edges (M, 3)."""
-
-    edges: np.ndarray
-    uses: np.ndarray
-    of_triangle: np.ndarray
-
-
-def _edge_use(triangles: np.ndarray) -> _EdgeUse:
-    t = np.sort(np.asarray(triangles, np.int64), axis=1)
-    pairs = np.stack([t[:, [0, 1]], t[:, [1, 2]], t[:, [0, 2]]], axis=1).reshape(-1, 2)
-    n = int(t.max()) + 1 if len(t) else 1
-    # One integer per edge: np.unique on a 1-D key is ~20x faster than on rows.
-    keys, inverse, uses = np.unique(
-        pairs[:, 0] * n + pairs[:, 1], return_inverse=True, return_counts=True
-    )
-    return _EdgeUse(np.stack([keys // n, keys % n], axis=1), uses, inverse.reshape(-1, 3))
-
-
-def _boundary_loop_count(mesh: o3d.geometry.TriangleMesh) -> int:
-    use = _edge_use(mesh.triangles)
-    return len(_boundary_loops(np.asarray(mesh.vertices), use.edges[use.uses == 1]))
-
-
-def _manifold_patches(triangles: np.ndarray, added: np.ndarray) -> np.ndarray:
-    """Mask of the `added` triangles to keep: each connected patch of added triangles (one
-    filled hole) is dropped whole when one of its edges ends up in more than two triangles,
-    which happens where the hole touched another boundary."""
-    use = _edge_use(triangles)
-    edge_of, uses = use.of_triangle, use.uses
-    index = np.flatnonzero(added)
-    # Added triangles sharing an edge belong to the same patch.
-    rows = np.repeat(np.arange(len(index)), 3)
-    incidence = coo_matrix(
-        (np.ones(len(rows)), (rows, edge_of[index].ravel())), shape=(len(index), len(uses))
-    ).tocsr()
-    _, patch = connected_components(incidence @ incidence.T, directed=False)
-    bad = np.zeros(patch.max() + 1 if len(patch) else 0, bool)
-    np.logical_or.at(bad, patch, (uses[edge_of[index]] > 2).any(axis=1))
-    keep = np.ones(len(triangles), bool)
-    keep[index] = ~bad[patch]
-    return keep
-
-
-def fill_small_holes(mesh: o3d.geometry.TriangleMesh, max_radius_m: float) -> int:
-    """In place: close the holes whose boundary fits in a sphere of max_radius_m (Open3D's
-    fill_holes, VTK's hole filler) unless closing one would make the mesh non-manifold.
-    Returns how many holes were closed."""
-    if max_radius_m <= 0 or not len(mesh.triangles):
-        return 0
-    before = _boundary_loop_count(mesh)
-    # fill_holes hands the mesh to VTK without copying: the tensor mesh must stay alive until
-    # the result is copied back (a temporary gave garbage vertices).
-    tensor_mesh = o3d.t.geometry.TriangleMesh.from_legacy(mesh)
-    closed = tensor_mesh.fill_holes(hole_size=max_radius_m).to_legacy()
-    del tensor_mesh
-    # VTK works in float32 and only adds triangles between existing boundary vertices: keep
-    # our float64 vertices (and colours) and take its triangles.
-    if len(closed.vertices) != len(mesh.vertices) or not np.allclose(
-        np.asarray(closed.vertices), np.asarray(mesh.vertices), rtol=0, atol=1e-6
-    ):
-        raise RuntimeError("fill_holes moved or added vertices")
-    triangles = np.asarray(closed.triangles)
-    original = np.asarray(mesh.triangles)
-    # VTK appends the new triangles after the existing ones.
-    if not np.array_equal(triangles[: len(original)], original):
-        raise RuntimeError("fill_holes changed the existing triangles")
-    added = np.arange(len(triangles)) >= len(original)
-    if added.any():
-        triangles = triangles[_manifold_patches(triangles, added)]
-    mesh.triangles = o3d.utility.Vector3iVector(triangles)
-    return before - _boundary_loop_count(mesh)
 
 
 def finish_mesh(name: str, mesh: o3d.geometry.TriangleMesh, config: SurfaceConfig) -> SurfaceMesh:
@@ -408,35 +301,6 @@ def build_surface(
         )
     inputs = SurfaceInput(fused, depth_views, roi or RegionOfInterest(shape="none"), remove_points)
     return SURFACE_METHODS[method](inputs, config)
-
-
-def mesh_quality(mesh: SurfaceMesh) -> MeshQuality:
-    m = mesh.to_open3d()
-    tris = np.asarray(mesh.triangles)
-    use = _edge_use(tris)
-    uses = use.uses
-    n_components = len(np.asarray(m.cluster_connected_triangles()[1])) if len(tris) else 0
-    return MeshQuality(
-        len(mesh.vertices),
-        len(mesh.triangles),
-        n_components,
-        int(np.sum(uses == 1)),
-        int(np.sum(uses > 2)),
-        bool(len(tris) and np.all(uses == 2) and m.is_vertex_manifold()),
-        float(m.get_surface_area()) if len(tris) else 0.0,
-        _boundary_loops(np.asarray(mesh.vertices), use.edges[uses == 1]),
-    )
-
-
-def _boundary_loops(vertices: np.ndarray, boundary: np.ndarray) -> tuple[float, ...]:
-    if not len(boundary):
-        return ()
-    n = len(vertices)
-    graph = coo_matrix((np.ones(len(boundary)), (boundary[:, 0], boundary[:, 1])), shape=(n, n))
-    _, label = connected_components(graph, directed=False)
-    length = np.linalg.norm(vertices[boundary[:, 0]] - vertices[boundary[:, 1]], axis=1)
-    perimeter = np.bincount(label[boundary[:, 0]], weights=length)
-    return tuple(float(p) for p in sorted(perimeter[perimeter > 0], reverse=True))
 
 
 def save_mesh(mesh: SurfaceMesh, path: Path) -> None:

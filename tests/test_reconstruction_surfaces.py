@@ -26,6 +26,7 @@ from synthetic_views import (
 
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import FilterConfig, RegionOfInterest, filter_view
+from reconstruction.mesh_topology import mesh_quality
 from reconstruction.metrics import TriangleSurface, evaluate_surface
 from reconstruction.surfaces import (
     DepthView,
@@ -33,7 +34,6 @@ from reconstruction.surfaces import (
     SurfaceMesh,
     build_surface,
     fuse_clouds,
-    mesh_quality,
     save_cloud,
     save_mesh,
 )
@@ -124,7 +124,7 @@ def test_tsdf_needs_depth_maps(band):
 
 
 def test_cleaning_drops_debris_and_degenerate_faces():
-    from reconstruction.surfaces import clean_mesh
+    from reconstruction.mesh_topology import clean_mesh
 
     big = o3d.geometry.TriangleMesh.create_sphere(0.05, 40)
     debris = o3d.geometry.TriangleMesh.create_tetrahedron(0.001).translate((0.2, 0, 0))
@@ -162,7 +162,7 @@ def test_holes_below_the_data_resolution_are_closed_and_counted_larger_ones_kept
 
 
 def test_a_filled_hole_that_would_make_the_mesh_non_manifold_stays_open():
-    from reconstruction.surfaces import _manifold_patches
+    from reconstruction.mesh_topology import _manifold_patches
 
     # Two existing triangles share edge (0, 1). Patch A (two added triangles) puts a third
     # triangle on that edge; patch B (one added triangle) touches nothing existing twice.
