@@ -14,6 +14,7 @@ import numpy as np
 
 from reconstruction.camera_model import StereoCamera, StereoDesign
 from reconstruction.errors import ScannerError
+from reconstruction.transforms import make_pose
 from robots.blinking_marker import BlinkingMarker
 from robots.sim_camera import SimulatedStereoCamera
 from robots.truth import Truth
@@ -50,10 +51,8 @@ class StaticCameraConfig(StereoDesign):
         if np.linalg.norm(x) < 1e-6:
             raise ScannerError("static camera: looking straight up or down is not supported")
         x /= np.linalg.norm(x)
-        X = np.eye(4)
-        X[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-        X[:3, 3] = np.asarray(self.position_m) - x * self.baseline_m / 2
-        return X
+        R = np.column_stack([x, np.cross(z, x), z])
+        return make_pose(R, np.asarray(self.position_m) - x * self.baseline_m / 2)
 
 
 class StaticStereoCamera(SimulatedStereoCamera):

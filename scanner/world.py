@@ -15,6 +15,7 @@ from reconstruction.errors import ScannerError
 from reconstruction.stereo.cloud import view_cloud
 from reconstruction.stereo.params import disparity_window, object_depth_window
 from reconstruction.stereo.rectification import compute_rectification
+from reconstruction.transforms import transform_points
 from robots import camera_tool
 from robots.drivers import RobotDriver, StereoCameraDriver, load_hardware
 from robots.simulation import Simulation, cache_dir, create_simulation
@@ -144,7 +145,7 @@ def live_cloud(live, config: ScanConfig, stereo: StereoCamera, X_FC: np.ndarray)
     def process(capture) -> None:
         X_WC = capture.X_WF @ X_FC
         cloud = view_cloud(rect, capture.left, capture.right, X_WC, centre, radius, params)
-        p_W = cloud.points_C @ X_WC[:3, :3].T + X_WC[:3, 3]
+        p_W = transform_points(X_WC, cloud.points_C)
         live.add_cloud(f"{capture.pose_index:04d}", p_W, cloud.colors)
 
     return process
