@@ -1,5 +1,5 @@
 # The two commands of the README. Both are idempotent: they set up .venv/ when needed.
-.PHONY: scan test setup lint
+.PHONY: scan test setup lint lock
 
 setup:
 	@./scripts/setup_env.sh
@@ -13,3 +13,8 @@ test: setup
 
 lint: setup
 	.venv/bin/ruff check .
+
+# Re-resolve the newest versions within pyproject.toml's ranges into requirements.lock (with hashes).
+lock: setup
+	.venv/bin/uv pip compile pyproject.toml --extra dev --generate-hashes --quiet \
+		--python-version 3.11 --python-platform x86_64-manylinux_2_35 -o requirements.lock

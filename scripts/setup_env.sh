@@ -27,11 +27,15 @@ if [ ! -x .venv/bin/python ]; then
     "$PYTHON" -m venv .venv
 fi
 stamp=.venv/.installed
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
-    echo "setup: installing scanner and its dependencies into .venv/"
+# Exactly the versions CI tested (requirements.lock, with hashes); pyproject.toml keeps the ranges
+# for people who install the package into an environment of their own.
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ requirements.lock -nt "$stamp" ]; then
+    echo "setup: installing scanner and its locked dependencies into .venv/"
     # Build back-end chatter goes to a log; it is shown only when the install fails.
     if ! { .venv/bin/python -m pip install -q --upgrade pip \
-           && .venv/bin/python -m pip install -q -e ".[dev]"; } > .venv/install.log 2>&1; then
+           && .venv/bin/python -m pip install -q --require-hashes --no-deps -r requirements.lock \
+           && .venv/bin/python -m pip install -q --no-deps -e . \
+           && .venv/bin/python -m pip check; } > .venv/install.log 2>&1; then
         cat .venv/install.log >&2
         echo "setup: installing into .venv/ failed (log above, also in .venv/install.log)" >&2
         exit 1
