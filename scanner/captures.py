@@ -27,12 +27,15 @@ import yaml
 
 from reconstruction.errors import ScannerError
 from reconstruction.yaml_files import read_yaml
+from scanner.results_folder import storage_error
 
 SCAN_SCHEMA = "scanner.scan/1"
 CAPTURE_SCHEMA = "scanner.capture/1"
 MANIFEST = "scan.yaml"
 CAPTURES = "captures"
 RESULTS = "results"
+# A scan's status only moves forward; an interrupted scan runs again when resumed.
+STATUS_RANK = {"running": 0, "interrupted": 0, "captured": 1, "complete": 2}
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,13 +55,22 @@ class Capture:
             a.setflags(write=False)
 
 
-def atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
+def write_bytes(path: Path, data: bytes) -> None:
+    """One file, flushed to the disk (a full disk raises here, not later)."""
+    with open(path, "wb") as f:
+        f.write(data)
         f.flush()
         os.fsync(f.fileno())
-    os.replace(tmp, path)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        write_bytes(tmp, text.encode())
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def atomic_write_yaml(path: Path, data: dict) -> None:
@@ -106,7 +118,10 @@ class CaptureStore:
                     "or --force to replace it"
                 )
             shutil.rmtree(root)
-        (root / CAPTURES).mkdir(parents=True, exist_ok=True)
+        try:
+            (root / CAPTURES).mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise ScannerError(f"{root}: cannot create the scan directory ({e.strerror})") from None
         store = cls(root)
         store.write_manifest(
             {"schema": SCAN_SCHEMA, "created": _now(), "status": "running", **manifest}
@@ -134,6 +149,10 @@ class CaptureStore:
 
     def update_manifest(self, **changes) -> dict:
         manifest = self.read_manifest()
+        if "status" in changes:
+            before, after = manifest.get("status", "running"), changes["status"]
+            if STATUS_RANK[after] < STATUS_RANK[before]:
+                raise AssertionError(f"scan status may not go back from {before} to {after}")
         manifest.update(changes)
         manifest["updated"] = _now()
         self.write_manifest(manifest)
@@ -162,10 +181,24 @@ class CaptureStore:
         tmp = self.root / CAPTURES / f".tmp-{_folder(capture.pose_index)}"
         if tmp.exists():
             shutil.rmtree(tmp)
-        tmp.mkdir()
+        try:
+            tmp.mkdir()
+            self._write_capture_files(tmp, capture)
+            _fsync_dir(tmp)
+            os.rename(tmp, final)
+            _fsync_dir(final.parent)
+        except OSError as e:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise storage_error(final, e) from None
+        return final
+
+    @staticmethod
+    def _write_capture_files(tmp: Path, capture: Capture) -> None:
         for name, rgb in (("left.png", capture.left), ("right.png", capture.right)):
-            if not cv2.imwrite(str(tmp / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
-                raise OSError(f"could not write {tmp / name}")
+            ok, png = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+            if not ok:
+                raise ScannerError(f"capture {capture.pose_index}: image could not be encoded")
+            write_bytes(tmp / name, png.tobytes())
         meta = {
             "schema": CAPTURE_SCHEMA,
             "pose_index": capture.pose_index,
@@ -178,10 +211,6 @@ class CaptureStore:
             "image_size": [int(capture.left.shape[1]), int(capture.left.shape[0])],
         }
         atomic_write_yaml(tmp / "capture.yaml", meta)
-        _fsync_dir(tmp)
-        os.rename(tmp, final)
-        _fsync_dir(final.parent)
-        return final
 
     def read_capture(self, index: int) -> Capture:
         """One capture, validated; a damaged capture raises ScannerError naming the problem."""

@@ -152,8 +152,12 @@ def _scan(args: argparse.Namespace) -> int:
     if args.resume is not None:
         if args.out is not None:
             raise ScannerError("--resume DIR continues DIR; do not give --out as well")
-        given = args.config is not None or any(v is not None for v in flags.values())
-        config = with_overrides(load_scan_config(args.config), **flags) if given else None
+        from scanner.config import resume_request
+        from scanner.manifest import open_scan
+
+        given = {k: v for k, v in flags.items() if v is not None}
+        saved = open_scan(args.resume).config
+        config = resume_request(saved, args.config, **given)
         out = None
     else:
         config = with_overrides(load_scan_config(args.config), **flags)
@@ -177,6 +181,8 @@ def _scan(args: argparse.Namespace) -> int:
     )
     print(f"scan directory: {result.scan_dir}")
     print(f"report: {result.scan_dir / 'results' / 'report.json'}")
+    if (result.scan_dir / "results" / "summary.md").is_file():
+        print(f"summary: {result.scan_dir / 'results' / 'summary.md'}")
     if r["status"] == "interrupted":
         print(f"continue with: scanner scan --resume {result.scan_dir}")
         return 130
@@ -189,11 +195,12 @@ def _reconstruct(args: argparse.Namespace) -> int:
     from reconstruction.calibration.file import load_calibration
     from scanner.manifest import open_scan
     from scanner.reconstruct import (
-        free_results_dir,
-        holds_reconstruction,
+        RECONSTRUCTION_MARKER,
+        free_reconstruction_dir,
         load_processing_config,
         run_reconstruct,
     )
+    from scanner.results_folder import require_replaceable
 
     scan = open_scan(args.scan_dir)
     if args.config is not None:
@@ -213,12 +220,9 @@ def _reconstruct(args: argparse.Namespace) -> int:
     if args.calibration is not None:
         calibration = load_calibration(args.calibration)
         stereo, X_FC = calibration.stereo, calibration.X_FC
-    out = args.out or free_results_dir(args.scan_dir)
-    if args.out is not None and holds_reconstruction(args.out) and not args.force:
-        raise ScannerError(
-            f"{args.out}: holds a reconstruction already; choose another --out, or --force to "
-            "replace it"
-        )
+    out = args.out or free_reconstruction_dir(args.scan_dir)
+    if args.out is not None:
+        require_replaceable(args.out, RECONSTRUCTION_MARKER, args.force, "reconstruction")
     run = run_reconstruct(scan, processing, out, X_FC, stereo)
     r = run.report
     print(
@@ -254,19 +258,33 @@ def _run(args: argparse.Namespace) -> int:
     raise AssertionError(f"unhandled command {args.command}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def _quiet_libraries() -> None:
+    """Library chatter stays off the console: OpenCV and Open3D failures surface as our
+    messages (their results are checked), Drake's context allocation is logged at INFO."""
     import logging
 
+    import cv2
+    import open3d as o3d
     import pydrake.common  # noqa: F401  (sets up the "drake" logger, which we then quieten)
 
-    # Drake reports its own context allocation at INFO; users only need its warnings.
     logging.getLogger("drake").setLevel(logging.WARNING)
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    _quiet_libraries()
     try:
         return _run(args)
     except ScannerError as e:
         print(f"scanner: error: {e}", file=sys.stderr)
-        return 2
+        return e.exit_code
+    except OSError as e:
+        # Reading or writing failed where no stage turned it into a message of its own.
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"scanner: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("scanner: interrupted", file=sys.stderr)
         return 130

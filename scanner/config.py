@@ -16,6 +16,7 @@ from reconstruction.errors import ScannerError
 from reconstruction.pipeline import ReconstructionConfig
 from reconstruction.stereo.params import StereoParams
 from reconstruction.surfaces import MESH_SUFFIXES
+from reconstruction.yaml_files import read_yaml
 from robots.truth import ErrorModel
 from robots.workcell import WorkcellConfig
 from scanner.typed_yaml import from_dict, load_yaml_file, to_dict
@@ -94,6 +95,22 @@ def scan_config_from_dict(data: dict, where: str) -> ScanConfig:
 
 def scan_config_to_dict(config: ScanConfig) -> dict:
     return to_dict(config)
+
+
+def _deep_merge(base, over):
+    if isinstance(base, dict) and isinstance(over, dict):
+        return {**base, **{k: _deep_merge(base.get(k), v) for k, v in over.items()}}
+    return over
+
+
+def resume_request(saved: ScanConfig, path: Path | None, **flags) -> ScanConfig:
+    """What a resume asks for: the saved configuration with only what the user gave now (the
+    keys of a --config file, the flags) applied, so that options not given are never compared."""
+    config = saved
+    if path is not None:
+        given = read_yaml(path, "configuration") or {}
+        config = scan_config_from_dict(_deep_merge(scan_config_to_dict(saved), given), str(path))
+    return with_overrides(config, **flags)
 
 
 def with_overrides(

@@ -37,6 +37,7 @@ from robots.workcell import keep_out_radius_m
 from scanner.captures import atomic_write_text
 from scanner.config import ProcessingConfig, ScanConfig
 from scanner.manifest import SavedScan, open_scan
+from scanner.results_folder import free_results_dir, holds_result, staged_folder
 from scanner.typed_yaml import load_yaml_file, to_dict
 
 log = logging.getLogger("scanner.reconstruct")
@@ -138,18 +139,17 @@ def evaluate(result: ReconstructionResult, truth, surface, centres, samples: int
     return out
 
 
+RECONSTRUCTION_MARKER = "reconstruction.yaml"
+
+
 def holds_reconstruction(results_dir: Path) -> bool:
-    return (Path(results_dir) / "reconstruction.yaml").is_file()
+    return holds_result(results_dir, RECONSTRUCTION_MARKER)
 
 
-def free_results_dir(scan_dir: Path) -> Path:
+def free_reconstruction_dir(scan_dir: Path) -> Path:
     """SCAN_DIR/results while it holds no reconstruction, else the first free SCAN_DIR/results-N:
     an offline run never replaces an earlier one (e.g. the scan's own, or a --no-icp run)."""
-    candidate, n = Path(scan_dir) / "results", 1
-    while holds_reconstruction(candidate):
-        n += 1
-        candidate = Path(scan_dir) / f"results-{n}"
-    return candidate
+    return free_results_dir(scan_dir, RECONSTRUCTION_MARKER)
 
 
 def _with_roi_centre(config: ReconstructionConfig, centre: np.ndarray) -> ReconstructionConfig:
@@ -228,24 +228,31 @@ def run_reconstruct(
         with timer("evaluate"):
             report.update(_metrics(result, truth, captured.joints, processing))
     out = Path(results_dir) if results_dir else scan.store.results_dir
-    with timer("write"):
-        report.update(_write_results(result, processing, truth, out))
-    report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
-    report["reconstruct_s"] = time.perf_counter() - t0
-    return ReconstructRun(result, _merge_report(out, report), out)
+    earlier = _earlier_report(out)
+    with staged_folder(out) as staging:
+        with timer("write"):
+            report.update(_write_results(result, processing, truth, staging))
+        report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
+        report["reconstruct_s"] = time.perf_counter() - t0
+        merged = {**earlier, **report}
+        _write_report(staging, merged)
+    return ReconstructRun(result, merged, out)
 
 
-def _merge_report(out: Path, report: dict) -> dict:
-    """report.json updated with `report` (a scan's own report keeps its keys), and summary.md."""
+def _earlier_report(out: Path) -> dict:
+    """The scan's own report when `out` holds one but no reconstruction (the end of a scan);
+    a reconstruction's report is replaced as a whole (the caller allowed it)."""
+    path = out / "report.json"
+    if holds_reconstruction(out) or not path.is_file():
+        return {}
+    return json.loads(path.read_text())
+
+
+def _write_report(folder: Path, report: dict) -> None:
     from scanner.report import write_summary
 
-    merged = {}
-    if (out / "report.json").is_file():
-        merged = json.loads((out / "report.json").read_text())
-    merged.update(report)
-    atomic_write_text(out / "report.json", json.dumps(merged, indent=2) + "\n")
-    write_summary(merged, out)
-    return merged
+    atomic_write_text(folder / "report.json", json.dumps(report, indent=2) + "\n")
+    write_summary(report, folder)
 
 
 def load_processing_config(path: Path) -> ProcessingConfig:

@@ -8,13 +8,14 @@ import logging
 import signal
 import time
 from collections.abc import Callable
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from planners.tour import Tour, plan_tour
+from reconstruction.errors import ScannerError, StorageError
 from reconstruction.stage_timer import StageTimer
 from robots.kinematics import Kinematics
 from robots.simulation import Simulation, object_vertices_W
@@ -23,7 +24,7 @@ from scanner.captures import CaptureStore, atomic_write_text, require_same_setti
 from scanner.config import ScanConfig, scan_config_to_dict
 from scanner.decision import DecisionMaker, FixedViewList, RunSummary
 from scanner.manifest import SavedScan, new_manifest, open_scan
-from scanner.reconstruct import run_reconstruct
+from scanner.reconstruct import holds_reconstruction, run_reconstruct
 from scanner.report import write_summary
 from scanner.viewpoints import PlannedView, generate_viewpoints
 from scanner.world import ScanWorld, WatchedRobot, live_cloud, setup_world
@@ -35,7 +36,6 @@ log = logging.getLogger("scanner.scan")
 class ScanResult:
     scan_dir: Path
     report: dict
-    summary: RunSummary
 
 
 def _interruptible(machine: DecisionMaker):
@@ -99,6 +99,11 @@ def _open_resumed(resume: Path, requested: ScanConfig | None) -> SavedScan:
     """The interrupted scan, checked against the configuration asked for now (if any), with
     its partial capture (if the scan was killed mid-write) removed."""
     saved = open_scan(resume)
+    if saved.manifest.get("status") == "complete":
+        raise ScannerError(
+            f"{resume}: the scan is complete; nothing was changed. To reconstruct it again "
+            f"(into a new results-N/), run: scanner reconstruct {resume}"
+        )
     if requested is not None:
         require_same_settings(
             resume, "scan", scan_config_to_dict(saved.config), scan_config_to_dict(requested)
@@ -217,10 +222,13 @@ def run_scan(
     meshcat: bool = False,
 ) -> ScanResult:
     """A new scan into `out_dir`, or continue the scan in `resume` (then `config` must be None
-    or equal to the saved one)."""
+    or equal to the saved one). A resumed scan whose captures are complete is only
+    reconstructed; a complete scan is refused (nothing is changed)."""
+    saved = _open_resumed(resume, config) if resume is not None else None
+    if saved is not None and saved.manifest.get("status") == "captured":
+        return _reconstruct_captured(saved)
     timer = StageTimer()
     wall0 = time.perf_counter()
-    saved = _open_resumed(resume, config) if resume is not None else None
     config = saved.config if saved else (config or ScanConfig())
     with timer("setup"):
         viewer = _meshcat(meshcat)
@@ -241,7 +249,7 @@ def run_scan(
         progress(len(done), len(views))
         machine.on_view_done = lambda _: progress(len(store.captured_indices()), len(views))
     with timer("capture"), _interruptible(machine), _log_file(store.root / "scan.log"):
-        summary = machine.run()
+        summary = _run_machine(machine, store)
     status = "interrupted" if summary.state.value == "aborted" else "captured"
     skipped = [{"index": o.index, "reason": o.reason} for o in summary.skipped]
     store.update_manifest(status=status, skipped_views=skipped)
@@ -249,14 +257,56 @@ def run_scan(
     def report() -> dict:
         return _scan_report(config, store, summary, tour, len(views), timer, wall0)
 
-    store.results_dir.mkdir(exist_ok=True)
-    report_path = store.results_dir / "report.json"
-    atomic_write_text(report_path, json.dumps(report(), indent=2) + "\n")
+    _write_scan_report(store, report())
     if config.reconstruct and status == "captured":
         with timer("reconstruction"):
             run_reconstruct(saved or open_scan(store.root))
         store.update_manifest(status="complete")
-        merged = {**json.loads(report_path.read_text()), **report()}
-        atomic_write_text(report_path, json.dumps(merged, indent=2) + "\n")
+        _write_scan_report(store, report())
+    return ScanResult(store.root, _read_report(store))
+
+
+def _run_machine(machine: DecisionMaker, store: CaptureStore) -> RunSummary:
+    """The decision maker's run; a failed write (a full disk) stops the scan, keeping every
+    capture made so far, and says how to continue."""
+    try:
+        return machine.run()
+    except StorageError as e:
+        # On a full disk the manifest may keep "running", which resumes the same way.
+        with suppress(OSError):
+            store.update_manifest(status="interrupted")
+        raise StorageError(
+            f"{e}; the {len(store.captured_indices())} captures so far are kept: free space, "
+            f"then continue with: scanner scan --resume {store.root}"
+        ) from None
+
+
+def _read_report(store: CaptureStore) -> dict:
+    return json.loads((store.results_dir / "report.json").read_text())
+
+
+def _write_scan_report(store: CaptureStore, report: dict) -> None:
+    """The scan's keys into results/report.json, keeping the reconstruction's keys there."""
+    path = store.results_dir / "report.json"
+    store.results_dir.mkdir(exist_ok=True)
+    merged = {**json.loads(path.read_text()), **report} if path.is_file() else report
+    atomic_write_text(path, json.dumps(merged, indent=2) + "\n")
+    if "reconstruct_s" in merged:
         write_summary(merged, store.results_dir)
-    return ScanResult(store.root, json.loads(report_path.read_text()), summary)
+
+
+def _reconstruct_captured(saved: SavedScan) -> ScanResult:
+    """A scan whose captures are all there but whose reconstruction did not finish (or was
+    not asked for): reconstruct into results/ (kept from an earlier run if complete)."""
+    store = saved.store
+    if not holds_reconstruction(store.results_dir):
+        if not saved.config.reconstruct:
+            raise ScannerError(
+                f"{saved.root}: every view is captured and the configuration does not "
+                f"reconstruct; nothing was changed. Reconstruct with: scanner reconstruct "
+                f"{saved.root}"
+            )
+        run_reconstruct(saved)
+    store.update_manifest(status="complete")
+    _write_scan_report(store, {"status": "complete"})
+    return ScanResult(store.root, _read_report(store))

@@ -52,6 +52,12 @@ def solve_hand_eye(
         raise HandEyeMethodError(f"OpenCV hand-eye method '{method}' failed: {e.err}") from None
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
         raise HandEyeMethodError(f"OpenCV hand-eye method '{method}' gave a non-finite result")
+    # On motions that fit no rigid X (e.g. a wrong pose convention) some methods return a
+    # matrix that is not a rotation; OpenCV only logs that.
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise HandEyeMethodError(
+            f"OpenCV hand-eye method '{method}' found no rotation that fits these motions"
+        )
     return make_pose(R, t)
 
 

@@ -26,6 +26,10 @@ class CalibrationSettings:
     outlier_factor, outlier_min_px: a pose is an outlier when its RMS reprojection error exceeds
         both factor x the median pose RMS and min_px.
     fix_k3: estimate only k1, k2, p1, p2 (fewer parameters for short focal-range data).
+    max_reprojection_rms_px, max_board_scatter_m, max_hand_eye_translation_m: a calibration
+        beyond any of these is refused as physically implausible (a wrong pose convention
+        gives hundreds of px, tens of cm of board scatter and metres of X_FC; real sets of
+        usable quality stay within a few px and mm, a wrist camera within a tool's size).
     """
 
     min_poses: int = 5
@@ -40,6 +44,9 @@ class CalibrationSettings:
     outlier_factor: float = 4.0
     outlier_min_px: float = 1.0
     fix_k3: bool = False
+    max_reprojection_rms_px: float = 10.0
+    max_board_scatter_m: float = 0.02
+    max_hand_eye_translation_m: float = 0.5
 
     def __post_init__(self) -> None:
         if self.min_poses < 3:
@@ -49,5 +56,15 @@ class CalibrationSettings:
         require_count("solver", self, ("min_points_per_view",), minimum=4)
         check_loss(self.robust_loss, "solver.robust_loss")
         require_positive(
-            "solver", self, ("pixel_sigma_px", "robust_scale", "outlier_factor", "outlier_min_px")
+            "solver",
+            self,
+            (
+                "pixel_sigma_px",
+                "robust_scale",
+                "outlier_factor",
+                "outlier_min_px",
+                "max_reprojection_rms_px",
+                "max_board_scatter_m",
+                "max_hand_eye_translation_m",
+            ),
         )

@@ -17,6 +17,7 @@ from scanner.calibrate.eye_to_hand import run_eye_to_hand
 from scanner.calibrate.offline import OfflineOptions, calibrate_directory
 from scanner.calibrate.report import error_text
 from scanner.progress import ProgressBar
+from scanner.results_folder import require_replaceable
 
 
 def _board_size(text: str) -> tuple[int, int]:
@@ -79,7 +80,7 @@ def _config(args: argparse.Namespace) -> CalibrateConfig:
     return replace(config, eye_to_hand=e2h)
 
 
-def _print_summary(report: dict, out: Path, calibration_file: Path) -> None:
+def _print_summary(report: dict, results_dir: Path, calibration_file: Path) -> None:
     line = f"calibration: {report['poses_used']}/{report['poses']} poses used"
     if report["poses_outliers"]:
         line += f", outliers rejected: {', '.join(report['poses_outliers'])}"
@@ -97,7 +98,7 @@ def _print_summary(report: dict, out: Path, calibration_file: Path) -> None:
     if truth:
         print(f"error against the simulator's truth: {error_text(truth)}")
     print(f"calibration file: {calibration_file}")
-    print(f"report: {out / 'results' / 'report.txt'}")
+    print(f"report: {results_dir / 'report.txt'}")
 
 
 def run_calibrate_command(args: argparse.Namespace) -> int:
@@ -108,6 +109,7 @@ def run_calibrate_command(args: argparse.Namespace) -> int:
         if args.offline is not None:
             raise ScannerError("--eye-to-hand runs in the simulator; do not give --offline")
         out = args.out or Path("calibrations") / f"eye-to-hand-{_stamp()}"
+        require_replaceable(out / "results", "eye_to_hand.yaml", args.force, "calibration")
         with ProgressBar("points") as bar:
             report = run_eye_to_hand(config, out, progress=bar.update)
         h = report["held_out"]
@@ -134,8 +136,8 @@ def run_calibrate_command(args: argparse.Namespace) -> int:
         out = args.out
         if out is None and not is_store:
             out = Path("calibrations") / f"{root.name}-{_stamp()}"
-        run = calibrate_directory(root, options, config.solver, out)
-        _print_summary(run.report, run.out_dir, run.calibration_file)
+        run = calibrate_directory(root, options, config.solver, out, force=args.force)
+        _print_summary(run.report, run.results_dir, run.calibration_file)
         return 0
     if args.resume is not None:
         if args.out is not None or args.force:
@@ -147,5 +149,5 @@ def run_calibrate_command(args: argparse.Namespace) -> int:
         run = run_eye_in_hand(
             config, out, args.force, progress=bar.update, resume=args.resume is not None
         )
-    _print_summary(run.report, run.out_dir, run.calibration_file)
+    _print_summary(run.report, run.results_dir, run.calibration_file)
     return 0

@@ -202,9 +202,7 @@ def run_eye_in_hand(
         extra_report={"stations_skipped": skipped, "capture_s": capture_s},
     )
     run.report["calibrate_s"] = time.perf_counter() - t0
-    atomic_write_text(
-        store.root / "results" / "report.json", json.dumps(run.report, indent=2) + "\n"
-    )
+    atomic_write_text(run.results_dir / "report.json", json.dumps(run.report, indent=2) + "\n")
     return run
 
 

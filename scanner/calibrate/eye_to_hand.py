@@ -31,6 +31,7 @@ from robots.static_camera import StaticStereoCamera
 from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.eye_in_hand import MoveFn, PlannedMover, build_world
 from scanner.captures import atomic_write_text
+from scanner.results_folder import staged_folder
 from scanner.units import deg, mm
 
 
@@ -176,8 +177,12 @@ def _report(fit, grid_points_count, fit_skipped, test_skipped, errors, X_WS_true
     }
 
 
-def _write_results(results: Path, report: dict, X_WS: np.ndarray, session: _MarkerSession) -> None:
-    results.mkdir(parents=True, exist_ok=True)
+def _write_results(final: Path, report: dict, X_WS: np.ndarray, session: _MarkerSession) -> None:
+    with staged_folder(final) as results:
+        _write_files(results, report, X_WS, session)
+
+
+def _write_files(results: Path, report: dict, X_WS: np.ndarray, session: _MarkerSession) -> None:
     atomic_write_text(
         results / "eye_to_hand.yaml",
         yaml.safe_dump(

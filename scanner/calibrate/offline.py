@@ -8,7 +8,7 @@ Results go to OUT/results/: calibration.yaml (what `scan` and `reconstruct` read
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -17,15 +17,22 @@ import numpy as np
 from reconstruction.calibration.boards import BoardSpec, detect_board
 from reconstruction.calibration.file import load_calibration
 from reconstruction.calibration.observations import PoseObservation
-from reconstruction.calibration.pose_files import PoseFormat, read_pose_file, read_pose_list
+from reconstruction.calibration.plausibility import implausible_figures, rank_conventions
+from reconstruction.calibration.pose_files import (
+    POSE_PRESETS,
+    PoseFormat,
+    read_pose_file,
+    read_pose_list,
+)
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.camera_model import PinholeCamera, StereoCamera, stereo_camera_from_dict
-from reconstruction.errors import ScannerError
+from reconstruction.errors import RefusedResultError, ScannerError
 from reconstruction.yaml_files import read_yaml
 from robots.truth import load_truth
-from scanner.calibrate.report import build_report, truth_errors, write_results
-from scanner.calibrate.solve import CalibrationRun, solve
+from scanner.calibrate.report import CALIBRATION_FILE, build_report, truth_errors, write_results
+from scanner.calibrate.solve import CalibrationRun, Solution, solve
 from scanner.captures import CaptureStore
+from scanner.results_folder import free_results_dir, require_replaceable
 from scanner.typed_yaml import from_dict
 
 IMAGE_SUFFIXES = (".png", ".bmp", ".jpg", ".jpeg", ".tif", ".tiff")
@@ -92,10 +99,7 @@ def _with_size(camera: PinholeCamera, size: tuple[int, int]) -> PinholeCamera:
     return PinholeCamera(camera.K, camera.distortion, int(size[0]), int(size[1]))
 
 
-def _foreign_observations(
-    root: Path, options: OfflineOptions, settings: CalibrationSettings
-) -> tuple[list[PoseObservation], tuple[int, int]]:
-    """Images (and left/ right/ subfolders for a stereo pair) with their robot poses."""
+def _images(root: Path) -> list[Path]:
     stereo = (root / "left").is_dir() and (root / "right").is_dir()
     image_dir = root / "left" if stereo else root
     images = sorted(
@@ -106,24 +110,41 @@ def _foreign_observations(
             f"{root}: no images ({', '.join(IMAGE_SUFFIXES)}) found; expected images with pose "
             "files, or left/ and right/ folders"
         )
-    if options.board is None:
-        raise ScannerError(f"{root}: give the board (--board, --board-size, --board-spacing)")
+    return images
+
+
+def _read_poses(
+    root: Path, images: list[Path], options: OfflineOptions, fmt: PoseFormat
+) -> list[np.ndarray]:
+    """X_WF of every image, from the pose list or one pose file per image."""
     if options.pose_file is not None:
-        poses = read_pose_list(options.pose_file, options.pose_format)
+        poses = read_pose_list(options.pose_file, fmt)
         if len(poses) != len(images):
             raise ScannerError(
                 f"{options.pose_file}: {len(poses)} poses for {len(images)} images; one pose per "
                 "image, in the images' name order"
             )
-    else:
-        poses = []
-        for image in images:
-            pose_path = root / (image.stem + options.pose_suffix)
-            if not pose_path.is_file():
-                raise ScannerError(
-                    f"{pose_path}: missing pose file for {image.name} (or give --pose-file)"
-                )
-            poses.append(read_pose_file(pose_path, options.pose_format))
+        return poses
+    poses = []
+    for image in images:
+        pose_path = root / (image.stem + options.pose_suffix)
+        if not pose_path.is_file():
+            raise ScannerError(
+                f"{pose_path}: missing pose file for {image.name} (or give --pose-file)"
+            )
+        poses.append(read_pose_file(pose_path, fmt))
+    return poses
+
+
+def _foreign_observations(
+    root: Path, options: OfflineOptions, settings: CalibrationSettings
+) -> tuple[list[PoseObservation], tuple[int, int]]:
+    """Images (and left/ right/ subfolders for a stereo pair) with their robot poses."""
+    stereo = (root / "left").is_dir() and (root / "right").is_dir()
+    images = _images(root)
+    if options.board is None:
+        raise ScannerError(f"{root}: give the board (--board, --board-size, --board-spacing)")
+    poses = _read_poses(root, images, options, options.pose_format)
     observations, size = [], None
     for image, X_WF in zip(images, poses):
         gray = _read_gray(image)
@@ -161,6 +182,33 @@ def _store_observations(
     return observations, size
 
 
+def _convention_hint(
+    root: Path, options: OfflineOptions, solution: Solution, settings: CalibrationSettings
+) -> str:
+    """Which pose preset (direct or inverse) the board views fit best, as advice; a preset is
+    suggested only when OpenCV's hand-eye under it keeps the board within the scatter limit."""
+    images = _images(root)
+    names = [image.stem for image in images]
+    X_CB = solution.hand_eye.X_CB
+    used = [k for k, name in enumerate(names) if name in X_CB]
+    poses = {}
+    for preset, fmt in POSE_PRESETS.items():
+        for inverse in (False, True):
+            try:
+                X_WF = _read_poses(root, images, options, replace(fmt, inverse=inverse))
+            except ScannerError:
+                continue  # these files do not have this layout
+            poses[preset + (" with --inverse-poses" if inverse else "")] = [X_WF[k] for k in used]
+    ranked = rank_conventions(poses, [X_CB[names[k]] for k in used])
+    if not ranked or ranked[0][1] > settings.max_board_scatter_m:
+        return "; no pose preset fits these images either"
+    name, scatter = ranked[0]
+    return (
+        f"; the poses fit --pose-convention {name} best (board scatter "
+        f"{1e3 * scatter:.1f} mm under OpenCV's hand-eye)"
+    )
+
+
 def _truth_of(root: Path) -> tuple[np.ndarray, StereoCamera] | None:
     path = root / "truth.yaml"
     if not path.is_file():
@@ -176,15 +224,18 @@ def calibrate_directory(
     settings: CalibrationSettings = CalibrationSettings(),
     out_dir: Path | None = None,
     extra_report: dict | None = None,
+    force: bool = False,
 ) -> CalibrationRun:
     """Calibrate from a directory: this tool's calibration directory, or another system's
-    images + poses. Results go to out_dir/results (default: root/results for a calibration
-    directory; root is never modified otherwise)."""
+    images + poses. Results go to out_dir/results, which must not hold a calibration unless
+    `force`; without out_dir, a calibration directory gets the first of root/results,
+    root/results-2, ... that holds none (another system's folder is never modified)."""
     root = Path(root)
     if not root.is_dir():
         raise ScannerError(f"{root}: no such directory")
     intrinsics = None if options.intrinsics is None else load_intrinsics(options.intrinsics)
-    if (root / "scan.yaml").is_file():
+    is_store = (root / "scan.yaml").is_file()
+    if is_store:
         store = CaptureStore.open(root)
         manifest = store.read_manifest()
         board = options.board
@@ -194,18 +245,30 @@ def calibrate_directory(
             board = from_dict(BoardSpec, manifest["board"], f"{store.manifest_path}:board")
         observations, size = _store_observations(store, board, settings)
         source = "simulation" if (root / "truth.yaml").is_file() else f"offline:{root}"
-        out_dir = out_dir or root
     else:
         observations, size = _foreign_observations(root, options, settings)
         board = options.board
         source = f"offline:{root}"
         if out_dir is None:
             raise ScannerError("offline calibration of another system's folder needs --out DIR")
+    if out_dir is None:
+        out_dir, results_dir = root, free_results_dir(root, CALIBRATION_FILE)
+    else:
+        results_dir = Path(out_dir) / "results"
+        require_replaceable(results_dir, CALIBRATION_FILE, force, "calibration")
     if isinstance(intrinsics, PinholeCamera) and intrinsics.width == 1:
         intrinsics = _with_size(intrinsics, size)
     solution = solve(board, observations, size, settings, intrinsics, source)
+    problems = implausible_figures(solution.hand_eye, settings)
+    if problems:
+        hint = "" if is_store else _convention_hint(root, options, solution, settings)
+        raise RefusedResultError(
+            f"calibration refused, nothing written: {'; '.join(problems)}. Likely causes: the "
+            "robot pose convention (Euler order, units, inverse poses) or the board "
+            f"description{hint}"
+        )
     truth = _truth_of(root)
     errors = None if truth is None else truth_errors(solution, *truth)
     report = build_report(solution, errors, extra_report)
-    path = write_results(out_dir, solution, report)
-    return CalibrationRun(Path(out_dir), path, report, solution)
+    path = write_results(results_dir, solution, report)
+    return CalibrationRun(Path(out_dir), results_dir, path, report, solution)

@@ -15,6 +15,7 @@ from reconstruction.metrics import handeye_error
 from reconstruction.transforms import matrix_to_rotvec
 from scanner.calibrate.solve import Solution
 from scanner.captures import atomic_write_text
+from scanner.results_folder import staged_folder
 from scanner.units import deg, mm
 
 CALIBRATION_FILE = "calibration.yaml"
@@ -144,10 +145,10 @@ def _truth_lines(truth: dict) -> list[str]:
     return lines
 
 
-def write_results(out_dir: Path, solution: Solution, report: dict) -> Path:
-    results = Path(out_dir) / "results"
-    results.mkdir(parents=True, exist_ok=True)
-    path = save_calibration(solution.calibration, results / CALIBRATION_FILE)
-    atomic_write_text(results / "report.json", json.dumps(report, indent=2) + "\n")
-    atomic_write_text(results / "report.txt", report_text(report))
-    return path
+def write_results(results_dir: Path, solution: Solution, report: dict) -> Path:
+    """calibration.yaml, report.json and report.txt, all or nothing (a staged folder)."""
+    with staged_folder(results_dir) as staging:
+        atomic_write_text(staging / "report.json", json.dumps(report, indent=2) + "\n")
+        atomic_write_text(staging / "report.txt", report_text(report))
+        save_calibration(solution.calibration, staging / CALIBRATION_FILE)
+    return Path(results_dir) / CALIBRATION_FILE

@@ -40,7 +40,8 @@ class Solution:
 
 @dataclass(frozen=True, eq=False)
 class CalibrationRun:
-    out_dir: Path
+    out_dir: Path  # the calibration (or foreign data's output) directory
+    results_dir: Path  # where this run's calibration.yaml and reports are
     calibration_file: Path
     report: dict
     solution: Solution
