@@ -36,12 +36,29 @@ def require_non_negative(section: str, config: object, names: Iterable[str]) -> 
             _fail(section, name, "a non-negative number", value)
 
 
-def require_count(section: str, config: object, names: Iterable[str], minimum: int = 1) -> None:
-    """Each field an integer >= minimum."""
+def require_count(
+    section: str,
+    config: object,
+    names: Iterable[str],
+    minimum: int = 1,
+    maximum: int | None = None,
+) -> None:
+    """Each field an integer >= minimum (and <= maximum when given)."""
     for name in names:
         value = getattr(config, name)
-        if not (isinstance(value, int) and not isinstance(value, bool) and value >= minimum):
+        ok = isinstance(value, int) and not isinstance(value, bool) and value >= minimum
+        if maximum is None and not ok:
             _fail(section, name, f"an integer >= {minimum}", value)
+        if maximum is not None and not (ok and value <= maximum):
+            _fail(section, name, f"an integer in [{minimum}, {maximum}]", value)
+
+
+def require_at_most(section: str, config: object, names: Iterable[str], maximum: float) -> None:
+    """Each field a finite number <= maximum (a physical bound, e.g. what the robot reaches)."""
+    for name in names:
+        value = getattr(config, name)
+        if not (_number(value) and value <= maximum):
+            _fail(section, name, f"a number <= {maximum:g}", value)
 
 
 def require_fraction(section: str, config: object, names: Iterable[str]) -> None:

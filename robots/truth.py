@@ -15,11 +15,13 @@ import numpy as np
 import yaml
 
 from reconstruction.camera_model import StereoCamera, stereo_camera_from_dict, stereo_camera_to_dict
-from reconstruction.checks import require_non_negative
+from reconstruction.checks import require_count, require_non_negative
 from reconstruction.errors import ScannerError
 from reconstruction.transforms import make_pose, rotation_about
 
 TRUTH_SCHEMA = "scanner.truth/1"
+# numpy's generators take any non-negative integer; 32 bits are plenty and print in full.
+MAX_SEED = 2**32 - 1
 
 
 @dataclass(frozen=True)
@@ -38,6 +40,7 @@ class ErrorModel:
     image_noise_std: float = 2.0
 
     def __post_init__(self) -> None:
+        require_count("error_model", self, ("seed",), minimum=0, maximum=MAX_SEED)
         require_non_negative(
             "error_model",
             self,

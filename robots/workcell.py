@@ -76,9 +76,11 @@ class WorkcellConfig:
         c = self.object_center_m
         if len(c) != 3 or not all(math.isfinite(v) for v in c):
             raise ScannerError(f"object_center_m: expected three finite numbers, got {c}")
-        if not (math.isfinite(self.object_size_m) and self.object_size_m > 0):
+        # The rod, the camera's depth window and the arm's reach are sized for objects of
+        # a few centimetres to half a metre.
+        if not (math.isfinite(self.object_size_m) and 0 < self.object_size_m <= 1.0):
             raise ScannerError(
-                f"object_size_m: must be a positive number of metres, got {self.object_size_m}"
+                f"object_size_m: expected a size in metres in (0, 1], got {self.object_size_m}"
             )
         if self.rod_top_z_m <= c[2]:
             raise ScannerError("rod_top_z_m: must be above the object centre")

@@ -4,6 +4,10 @@ error naming the option (exit 2)."""
 from __future__ import annotations
 
 import argparse
+import math
+from collections.abc import Callable
+
+from reconstruction.errors import ScannerError
 
 
 def positive_float(text: str) -> float:
@@ -11,6 +15,15 @@ def positive_float(text: str) -> float:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text}")
     return v
+
+
+def for_flag(flag: str, apply: Callable):
+    """`apply()` (a configuration change that validates itself), its ScannerError prefixed with
+    the command-line flag that asked for it."""
+    try:
+        return apply()
+    except ScannerError as e:
+        raise ScannerError(f"{flag}: {e}") from None

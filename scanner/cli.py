@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from reconstruction.errors import ScannerError
-from scanner.arguments import positive_float
+from scanner.arguments import for_flag, positive_float
 from scanner.calibrate.arguments import add_calibrate_parser
 
 BUILTIN_HELP = "vase, bracket, pebble"
@@ -247,8 +247,10 @@ def _run(args: argparse.Namespace) -> int:
 
         return run_calibrate_command(args)
     if args.command == "preview":
+        from robots.truth import ErrorModel
         from scanner.preview import run_preview
 
+        for_flag("--seed", lambda: ErrorModel(seed=args.seed))
         result = run_preview(args.object, args.out, args.seed)
         print(f"overview: {result.overview_png}")
         print(f"stereo pair: {result.left_png} {result.right_png}")

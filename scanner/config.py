@@ -19,6 +19,7 @@ from reconstruction.surfaces import MESH_SUFFIXES
 from reconstruction.yaml_files import read_yaml
 from robots.truth import ErrorModel
 from robots.workcell import WorkcellConfig
+from scanner.arguments import for_flag
 from scanner.typed_yaml import from_dict, load_yaml_file, to_dict
 from scanner.viewpoints import ViewpointConfig
 
@@ -123,17 +124,24 @@ def with_overrides(
     calibration_file: str | None = None,
     driver: str | None = None,
 ) -> ScanConfig:
-    """Command-line flags win over the file; each override is validated like the file."""
+    """Command-line flags win over the file; each override is validated like the file, and
+    an error names the flag."""
     if object_spec is not None:
         config = replace(config, object=object_spec)
     if size_m is not None:
-        config = replace(config, cell=replace(config.cell, object_size_m=size_m))
+        cell = for_flag("--size", lambda: replace(config.cell, object_size_m=size_m))
+        config = replace(config, cell=cell)
     if views is not None:
-        config = replace(config, views=replace(config.views, count=views))
+        config = replace(
+            config, views=for_flag("--views", lambda: replace(config.views, count=views))
+        )
     if radius_m is not None:
-        config = replace(config, views=replace(config.views, radius_m=radius_m))
+        config = replace(
+            config, views=for_flag("--radius", lambda: replace(config.views, radius_m=radius_m))
+        )
     if seed is not None:
-        config = replace(config, error_model=replace(config.error_model, seed=seed))
+        model = for_flag("--seed", lambda: replace(config.error_model, seed=seed))
+        config = replace(config, error_model=model)
     if calibration_file is not None:
         config = replace(config, calibration_file=calibration_file)
     if driver is not None:

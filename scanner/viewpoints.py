@@ -21,11 +21,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planners.ik import Viewpoint
-from reconstruction.checks import require_choice, require_count, require_positive
+from reconstruction.checks import (
+    require_at_most,
+    require_choice,
+    require_count,
+    require_positive,
+)
 from reconstruction.errors import ScannerError
 from scanner.sampling import farthest_point_sample, fibonacci_directions
 
 DISTRIBUTIONS = ("reachable", "sphere")
+
+# More views than this are a typo (a 24-view scan sees what the arm can reach).
+MAX_VIEWS = 1000
 
 
 @dataclass(frozen=True)
@@ -47,7 +55,10 @@ class ViewpointConfig:
     def __post_init__(self) -> None:
         if self.count < 1:
             raise ScannerError(f"views.count: at least 1 view is needed, got {self.count}")
+        require_count("views", self, ("count",), maximum=MAX_VIEWS)
         require_positive("views", self, ("radius_m", "replace_within_rad"))
+        # Far beyond the RX60's reach (0.67 m from the shoulder): a typo, not a plan.
+        require_at_most("views", self, ("radius_m",), 3.0)
         require_choice("views", "distribution", self.distribution, DISTRIBUTIONS)
         if not -math.pi / 2 <= self.elevation_min_rad < self.elevation_max_rad <= math.pi / 2:
             raise ScannerError("views.elevation_*_rad: need -pi/2 <= min < max <= pi/2")

@@ -58,9 +58,11 @@ class BoardSpec:
             raise ScannerError(
                 f"board: {self.cols}x{self.rows} is too small; need at least {least}x{least}"
             )
-        if not (math.isfinite(self.spacing_m) and self.spacing_m > 0):
+        if self.cols > 200 or self.rows > 200:
+            raise ScannerError(f"board: {self.cols}x{self.rows}: at most 200 along a side")
+        if not (math.isfinite(self.spacing_m) and 0 < self.spacing_m <= 0.5):
             raise ScannerError(
-                f"board spacing must be a positive length in metres, got {self.spacing_m}"
+                f"board spacing must be a length in metres in (0, 0.5], got {self.spacing_m}"
             )
         if self.kind == "charuco":
             if not 0 < self.marker_m < self.spacing_m:

@@ -11,6 +11,7 @@ from pathlib import Path
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.pose_files import pose_format
 from reconstruction.errors import ScannerError
+from scanner.arguments import for_flag
 from scanner.calibrate.config import CalibrateConfig, load_calibrate_config
 from scanner.calibrate.eye_in_hand import run_eye_in_hand
 from scanner.calibrate.eye_to_hand import run_eye_to_hand
@@ -62,9 +63,11 @@ def _stamp() -> str:
 def _config(args: argparse.Namespace) -> CalibrateConfig:
     config = load_calibrate_config(args.config)
     if args.seed is not None:
-        config = replace(config, error_model=replace(config.error_model, seed=args.seed))
+        model = for_flag("--seed", lambda: replace(config.error_model, seed=args.seed))
+        config = replace(config, error_model=model)
     if args.stations is not None:
-        config = replace(config, stations=replace(config.stations, count=args.stations))
+        stations = for_flag("--stations", lambda: replace(config.stations, count=args.stations))
+        config = replace(config, stations=stations)
     if args.driver is not None:
         if args.offline is not None:
             raise ScannerError("--offline calibrates recorded data; do not give --driver")
@@ -74,9 +77,9 @@ def _config(args: argparse.Namespace) -> CalibrateConfig:
         config = replace(config, board=board)
     e2h = config.eye_to_hand
     if args.held_out is not None:
-        e2h = replace(e2h, held_out=args.held_out)
+        e2h = for_flag("--held-out", lambda: replace(e2h, held_out=args.held_out))
     if args.grid_spacing is not None:
-        e2h = replace(e2h, grid_spacing_m=args.grid_spacing)
+        e2h = for_flag("--grid-spacing", lambda: replace(e2h, grid_spacing_m=args.grid_spacing))
     return replace(config, eye_to_hand=e2h)
 
 

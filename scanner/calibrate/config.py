@@ -11,11 +11,12 @@ from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.eye_to_hand import MarkerDetectionSettings
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.camera_model import StereoDesign
+from reconstruction.checks import require_at_most, require_count, require_positive
 from reconstruction.errors import ScannerError
 from robots.blinking_marker import MarkerConfig
 from robots.calibration_board import BoardPlacement
 from robots.static_camera import StaticCameraConfig
-from robots.truth import ErrorModel
+from robots.truth import MAX_SEED, ErrorModel
 from robots.workcell import WorkcellConfig
 from scanner.calibrate.stations import StationConfig
 from scanner.typed_yaml import load_yaml_file
@@ -53,8 +54,10 @@ class EyeToHandConfig:
     def __post_init__(self) -> None:
         if self.frames < 2:
             raise ScannerError("eye_to_hand.frames: frame differencing needs at least 2 frames")
-        if self.held_out < 0:
-            raise ScannerError("eye_to_hand.held_out: must be >= 0")
+        require_count("eye_to_hand", self, ("held_out",), minimum=0, maximum=10_000)
+        require_count("eye_to_hand", self, ("seed",), minimum=0, maximum=MAX_SEED)
+        require_positive("eye_to_hand", self, ("grid_spacing_m",))
+        require_at_most("eye_to_hand", self, ("grid_spacing_m",), 1.0)
         if any(s < 0 for s in self.grid_size_m):
             raise ScannerError("eye_to_hand.grid_size_m: sizes must be >= 0")
 

@@ -54,6 +54,7 @@ class StationConfig:
             raise ScannerError("stations: need 0 < distance_min_m <= distance_max_m")
         if not 0 <= self.max_tilt_rad < math.pi / 2:
             raise ScannerError("stations.max_tilt_rad: must be in [0, pi/2)")
+        require_count("stations", self, ("count",), minimum=3, maximum=1000)
         require_count("stations", self, ("candidates",), minimum=self.count)
         require_non_negative(
             "stations",
