@@ -16,5 +16,9 @@ def read_yaml(path: Path, what: str) -> object:
         return yaml.safe_load(path.read_text())
     except OSError as e:
         raise ScannerError(f"{path}: cannot read {what} ({e.strerror})") from None
+    except UnicodeDecodeError:
+        raise ScannerError(f"{path}: {what} is not a text file (UTF-8 YAML expected)") from None
     except yaml.YAMLError as e:
-        raise ScannerError(f"{path}: {what} is not valid YAML ({e})") from None
+        # PyYAML's message spans lines (with a caret under the column); one line for users.
+        detail = " ".join(str(e).split())
+        raise ScannerError(f"{path}: {what} is not valid YAML ({detail})") from None

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from reconstruction.errors import ScannerError
-from scanner.arguments import for_flag, positive_float
+from scanner.arguments import for_flag, name_arg, path_arg, positive_float
 from scanner.calibrate.arguments import add_calibrate_parser
 
 BUILTIN_HELP = "vase, bracket, pebble"
@@ -36,6 +36,7 @@ def _add_scan_parser(sub) -> None:
     )
     scan.add_argument(
         "--object",
+        type=name_arg,
         help=f"built-in object ({BUILTIN_HELP}), a mesh file (.obj/.ply/.stl), or the name of "
         "a mesh in a folder of $SCANNER_MESH_PATH; default vase",
     )
@@ -52,23 +53,24 @@ def _add_scan_parser(sub) -> None:
     )
     scan.add_argument(
         "--out",
-        type=Path,
+        type=path_arg,
         help="scan directory to create (default scans/OBJECT-TIMESTAMP)",
     )
     scan.add_argument("--seed", type=int, help="seed of the simulated error model")
-    scan.add_argument("--config", type=Path, help="scan configuration YAML")
+    scan.add_argument("--config", type=path_arg, help="scan configuration YAML")
     scan.add_argument(
         "--calibration",
-        type=Path,
+        type=path_arg,
         help="calibration file from `scanner calibrate` (stereo model and hand-eye X_FC)",
     )
     scan.add_argument(
         "--driver",
+        type=name_arg,
         metavar="MODULE:FACTORY",
         help="scan with real hardware: factory(config) returns robots.drivers.Hardware "
         "(default: the Drake simulation)",
     )
-    scan.add_argument("--resume", type=Path, metavar="DIR", help="continue an interrupted scan")
+    scan.add_argument("--resume", type=path_arg, metavar="DIR", help="continue an interrupted scan")
     scan.add_argument(
         "--force", action="store_true", help="replace an existing scan directory given with --out"
     )
@@ -90,20 +92,22 @@ def _add_reconstruct_parser(sub) -> None:
         help="re-run the reconstruction offline on a saved scan directory",
         description="Rebuild the model from saved captures (never modifies them).",
     )
-    reconstruct.add_argument("scan_dir", type=Path, help="a scan directory made by `scanner scan`")
+    reconstruct.add_argument(
+        "scan_dir", type=path_arg, help="a scan directory made by `scanner scan`"
+    )
     reconstruct.add_argument(
         "--config",
-        type=Path,
+        type=path_arg,
         help="processing YAML (stereo:, reconstruction:, ...); default: the scan's own settings",
     )
     reconstruct.add_argument(
         "--calibration",
-        type=Path,
+        type=path_arg,
         help="use this calibration's stereo model and X_FC instead of the scan's",
     )
     reconstruct.add_argument(
         "--out",
-        type=Path,
+        type=path_arg,
         help="results folder (default SCAN_DIR/results, or results-N when that holds one already)",
     )
     reconstruct.add_argument(
@@ -115,6 +119,7 @@ def _add_reconstruct_parser(sub) -> None:
     )
     reconstruct.add_argument(
         "--formats",
+        type=name_arg,
         help="mesh file formats, comma separated from ply,obj,stl (default ply)",
     )
 
@@ -129,7 +134,7 @@ def _add_preview_parser(sub) -> None:
     preview.add_argument(
         "--object", default="vase", help=f"built-in object ({BUILTIN_HELP}) or a mesh file"
     )
-    preview.add_argument("--out", type=Path, default=Path("out/preview"), help="output folder")
+    preview.add_argument("--out", type=path_arg, default=Path("out/preview"), help="output folder")
     preview.add_argument("--seed", type=int, default=0, help="seed of the simulated error model")
 
 
@@ -150,8 +155,8 @@ def _scan(args: argparse.Namespace) -> int:
         driver=args.driver,
     )
     if args.resume is not None:
-        if args.out is not None:
-            raise ScannerError("--resume DIR continues DIR; do not give --out as well")
+        if args.out is not None or args.force:
+            raise ScannerError("--resume DIR continues DIR; do not give --out or --force")
         from scanner.config import resume_request
         from scanner.manifest import open_scan
 
@@ -240,6 +245,10 @@ def _reconstruct(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if getattr(args, "out", None) is not None:
+        from scanner.results_folder import require_creatable
+
+        require_creatable(args.out, "--out")
     if args.command == "scan":
         return _scan(args)
     if args.command == "calibrate":
@@ -280,7 +289,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _run(args)
     except ScannerError as e:
-        print(f"scanner: error: {e}", file=sys.stderr)
+        message = " ".join(str(e).split())  # one line, whatever a library put into it
+        print(f"scanner: error: {message}", file=sys.stderr)
         return e.exit_code
     except OSError as e:
         # Reading or writing failed where no stage turned it into a message of its own.

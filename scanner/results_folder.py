@@ -7,8 +7,9 @@ from __future__ import annotations
 import errno
 import os
 import shutil
+import tempfile
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 from reconstruction.errors import ScannerError, StorageError
@@ -34,6 +35,24 @@ def require_replaceable(out: Path, marker: str, force: bool, what: str) -> None:
         raise ScannerError(
             f"{out}: holds a {what} already; choose another --out, or --force to replace it"
         )
+
+
+def require_creatable(path: Path, flag: str) -> None:
+    """Fail before any work when `path` (a folder to write into) cannot be made or written: a
+    probe folder is created in it and removed again, with any parents it needed."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ScannerError(f"{flag} {path}: is a file, expected a folder")
+    created = [p for p in (path, *path.parents) if not p.exists()]
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        os.rmdir(tempfile.mkdtemp(prefix=".probe-", dir=path))
+    except OSError as e:
+        raise ScannerError(f"{flag} {path}: cannot write there ({e.strerror})") from None
+    finally:
+        for p in created:  # deepest first
+            with suppress(OSError):
+                p.rmdir()
 
 
 def _pid_alive(pid: int) -> bool:

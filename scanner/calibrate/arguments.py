@@ -4,9 +4,8 @@ built for every command)."""
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from scanner.arguments import positive_float
+from scanner.arguments import name_arg, path_arg, positive_float
 
 
 def add_calibrate_parser(sub) -> None:
@@ -27,12 +26,12 @@ def add_calibrate_parser(sub) -> None:
 def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
     # Names are validated by the calibration code (one-line errors listing the valid ones), so
     # no argparse `choices` here.
-    calibrate.add_argument("--out", type=Path, help="calibration directory")
-    calibrate.add_argument("--config", type=Path, help="calibration YAML file")
+    calibrate.add_argument("--out", type=path_arg, help="calibration directory")
+    calibrate.add_argument("--config", type=path_arg, help="calibration YAML file")
     calibrate.add_argument("--force", action="store_true", help="replace an existing --out")
     calibrate.add_argument(
         "--resume",
-        type=Path,
+        type=path_arg,
         metavar="DIR",
         help="finish an interrupted eye-in-hand run: capture the stations it lacks, then solve",
     )
@@ -42,6 +41,7 @@ def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
     )
     calibrate.add_argument(
         "--driver",
+        type=name_arg,
         metavar="MODULE:FACTORY",
         help="eye-in-hand on real hardware (see `scan --driver`); the board stands where the "
         "configuration's placement says",
@@ -50,9 +50,10 @@ def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
 
 def _add_board_arguments(calibrate: argparse.ArgumentParser) -> None:
     board = calibrate.add_argument_group("board (simulation default: chessboard 10x7, 0.02 m)")
-    board.add_argument("--board", help="charuco, chessboard or circles_asymmetric")
+    board.add_argument("--board", type=name_arg, help="charuco, chessboard or circles_asymmetric")
     board.add_argument(
         "--board-size",
+        type=name_arg,
         metavar="COLSxROWS",
         help="squares (chessboard, charuco) or circles (circle grid) across x down, e.g. 7x11",
     )
@@ -68,7 +69,7 @@ def _add_board_arguments(calibrate: argparse.ArgumentParser) -> None:
         metavar="M",
         help="ChArUco marker size in metres",
     )
-    board.add_argument("--dictionary", help="ArUco dictionary, e.g. DICT_5X5_100")
+    board.add_argument("--dictionary", type=name_arg, help="ArUco dictionary, e.g. DICT_5X5_100")
     board.add_argument(
         "--inverted", action="store_true", help="white pattern on black (e.g. white dots)"
     )
@@ -78,30 +79,36 @@ def _add_offline_arguments(calibrate: argparse.ArgumentParser) -> None:
     offline = calibrate.add_argument_group("offline calibration from recorded data")
     offline.add_argument(
         "--offline",
-        type=Path,
+        type=path_arg,
         metavar="DIR",
         help="a calibration directory made by this tool, or images with robot pose files "
         "(same name, .txt) or left/ and right/ image folders",
     )
     offline.add_argument(
         "--pose-convention",
+        type=name_arg,
         help="robot pose preset: open3dv, yaskawa, fanuc, kuka, staubli, abb, ur, matrix_m, "
         "matrix_mm",
     )
     offline.add_argument(
         "--pose-layout",
+        type=name_arg,
         help="matrix, xyz_euler, euler_xyz, xyz_quat, xyz_wxyz or xyz_rotvec",
     )
-    offline.add_argument("--euler", help="Euler sequence: xyz (extrinsic) ... XYZ (intrinsic)")
-    offline.add_argument("--length-unit", help="m or mm")
-    offline.add_argument("--angle-unit", help="deg or rad")
+    offline.add_argument(
+        "--euler", type=name_arg, help="Euler sequence: xyz (extrinsic) ... XYZ (intrinsic)"
+    )
+    offline.add_argument("--length-unit", type=name_arg, help="m or mm")
+    offline.add_argument("--angle-unit", type=name_arg, help="deg or rad")
     offline.add_argument(
         "--inverse-poses", action="store_true", help="the files hold the base in the flange"
     )
-    offline.add_argument("--pose-file", type=Path, help="one pose per line, in image name order")
+    offline.add_argument(
+        "--pose-file", type=path_arg, help="one pose per line, in image name order"
+    )
     offline.add_argument(
         "--intrinsics",
-        type=Path,
+        type=path_arg,
         help="known intrinsics: calibration/stereo YAML, or text (K row by row, k1 k2 p1 p2 k3)",
     )
 

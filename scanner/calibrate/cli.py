@@ -45,6 +45,9 @@ def board_from_args(args: argparse.Namespace, base: BoardSpec | None) -> BoardSp
         changes["inverted"] = True
     if not changes:
         return base
+    kind = changes.get("kind", base.kind if base else None)
+    if kind != "charuco" and ("marker_m" in changes or "dictionary" in changes):
+        raise ScannerError("--marker-size and --dictionary apply only to --board charuco")
     if base is None:
         if "kind" not in changes or "cols" not in changes or "spacing_m" not in changes:
             raise ScannerError(
@@ -104,7 +107,36 @@ def _print_summary(report: dict, results_dir: Path, calibration_file: Path) -> N
     print(f"report: {results_dir / 'report.txt'}")
 
 
+OFFLINE_ONLY = (
+    "pose_convention",
+    "pose_layout",
+    "euler",
+    "length_unit",
+    "angle_unit",
+    "inverse_poses",
+    "pose_file",
+    "intrinsics",
+)
+EYE_TO_HAND_ONLY = ("held_out", "grid_spacing")
+
+
+def _require_mode(args: argparse.Namespace) -> None:
+    """Options of one mode are refused in the others (rather than silently ignored)."""
+
+    def given(names):
+        return [n for n in names if getattr(args, n) not in (None, False)]
+
+    def flag(name):
+        return "--" + name.replace("_", "-")
+
+    if args.offline is None and given(OFFLINE_ONLY):
+        raise ScannerError(f"{flag(given(OFFLINE_ONLY)[0])} applies only with --offline DIR")
+    if not args.eye_to_hand and given(EYE_TO_HAND_ONLY):
+        raise ScannerError(f"{flag(given(EYE_TO_HAND_ONLY)[0])} applies only with --eye-to-hand")
+
+
 def run_calibrate_command(args: argparse.Namespace) -> int:
+    _require_mode(args)
     config = _config(args)
     if args.resume is not None and (args.eye_to_hand or args.offline is not None):
         raise ScannerError("--resume continues an eye-in-hand run, not --eye-to-hand/--offline")

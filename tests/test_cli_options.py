@@ -1,0 +1,252 @@
+"""Every option of every subcommand with bad values (wrong types, negative, zero, NaN, infinite,
+huge, missing or unusable paths, unknown names): exit 2, one line naming the option or the value,
+never a traceback, and no work started (the expensive stages are replaced by a tripwire)."""
+
+from __future__ import annotations
+
+import os
+import string
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from scanner.captures import CaptureStore
+from scanner.cli import build_parser, main
+from scanner.config import ScanConfig
+from scanner.manifest import new_manifest
+
+
+class WorkStartedError(Exception):
+    """A bad value got past the checks into real work."""
+
+
+def _tripwire(*args, **kwargs):
+    raise WorkStartedError("a bad value reached the expensive stages")
+
+
+@pytest.fixture(scope="module")
+def places(tmp_path_factory):
+    """Valid context for the options that need one, and unusable paths of every kind."""
+    root = tmp_path_factory.mktemp("places")
+    (root / "file.txt").write_text("not what was asked for")
+    (root / "empty").mkdir()
+    (root / "list.yaml").write_text("- 1\n- 2\n")
+    (root / "broken.yaml").write_text("views: {count: [\n")
+    (root / "binary.yaml").write_bytes(bytes(range(256)))
+    scan = root / "scan"
+    config = ScanConfig()
+    stereo = config.camera.stereo_camera()
+    CaptureStore.create(scan, new_manifest(config, stereo, np.eye(4), [], {}))
+    foreign = root / "foreign"
+    foreign.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(foreign / f"pos{k}.png"), np.full((48, 64), 128, np.uint8))
+        (foreign / f"pos{k}.txt").write_text("0 0 0 100 200 300\n")
+    return root
+
+
+PATHS = [
+    "/nonexistent/x",
+    "{root}/file.txt",
+    "{root}/empty",
+    "{root}/list.yaml",
+    "{root}/broken.yaml",
+    "{root}/binary.yaml",
+    "",
+]
+OUT_PATHS = ["{root}/file.txt", "/proc/forbidden", "/proc/self/x", "{root}/file.txt/sub"]
+
+
+def _floats(maximum: float | None) -> st.SearchStrategy[str]:
+    bad = [
+        st.sampled_from(["nan", "inf", "-inf", "-0", "0", "abc", "", "1e400", "0x1p3", "1,5"]),
+        st.floats(max_value=0, allow_nan=False).map(repr),
+        st.text(string.ascii_letters, min_size=1, max_size=6),
+    ]
+    if maximum is not None:
+        bad.append(st.floats(min_value=maximum * 1.01, allow_infinity=False).map(repr))
+    return st.one_of(*bad)
+
+
+def _ints(minimum: int, maximum: int) -> st.SearchStrategy[str]:
+    return st.one_of(
+        st.integers(max_value=minimum - 1).map(str),
+        st.integers(min_value=maximum + 1).map(str),
+        st.sampled_from(["1.5", "abc", "", "nan", "1e3", "0x10"]),
+    )
+
+
+def _names(valid: list[str]) -> st.SearchStrategy[str]:
+    return st.text(min_size=0, max_size=12).filter(lambda s: s not in valid and "\0" not in s)
+
+
+def _paths(choices: list[str]) -> st.SearchStrategy[str]:
+    return st.sampled_from(choices)
+
+
+# (command and the context it needs, option, bad values). Every option of every subcommand is
+# listed; test_every_option_is_covered checks that against the parser.
+CASES = [
+    (["scan"], "--object", _names(["vase", "bracket", "pebble"])),
+    (["scan"], "--size", _floats(1.0)),
+    (["scan"], "--views", _ints(1, 1000)),
+    (["scan"], "--radius", _floats(3.0)),
+    (["scan"], "--out", _paths(OUT_PATHS)),
+    (["scan"], "--seed", _ints(0, 2**32 - 1)),
+    (["scan"], "--config", _paths(PATHS)),
+    (["scan"], "--calibration", _paths(PATHS)),
+    (["scan"], "--driver", _names([])),
+    (["scan"], "--resume", _paths(PATHS)),
+    (["scan", "--force"], "--resume", _paths(["{root}/scan"])),
+    (["scan", "--out", "{root}/new"], "--resume", _paths(["{root}/scan"])),
+    (["scan"], "--force=yes", None),
+    (["scan"], "--meshcat=1", None),
+    (["scan"], "--print-config=1", None),
+    (["calibrate"], "--out", _paths(OUT_PATHS)),
+    (["calibrate"], "--config", _paths(PATHS)),
+    (["calibrate"], "--force=1", None),
+    (["calibrate"], "--resume", _paths(PATHS)),
+    (["calibrate"], "--seed", _ints(0, 2**32 - 1)),
+    (["calibrate"], "--stations", _ints(3, 1000)),
+    (["calibrate"], "--driver", _names([])),
+    (["calibrate"], "--board", _names(["charuco", "chessboard", "circles_asymmetric"])),
+    (["calibrate"], "--board-size", _names([])),
+    (["calibrate"], "--board-spacing", _floats(0.5)),
+    (["calibrate"], "--marker-size", _floats(None)),
+    (["calibrate", "--board", "charuco"], "--marker-size", _floats(0.02)),
+    (["calibrate"], "--dictionary", _names([])),
+    (["calibrate"], "--inverted=1", None),
+    (["calibrate"], "--offline", _paths(PATHS)),
+    (["calibrate", "--offline", "{root}/foreign"], "--pose-convention", _names([])),
+    (["calibrate"], "--pose-convention", st.just("kuka")),
+    (["calibrate", "--offline", "{root}/foreign"], "--pose-layout", _names([])),
+    (["calibrate", "--offline", "{root}/foreign"], "--euler", _names(["xyz"])),
+    (["calibrate", "--offline", "{root}/foreign"], "--length-unit", _names(["m", "mm"])),
+    (["calibrate", "--offline", "{root}/foreign"], "--angle-unit", _names(["deg", "rad"])),
+    (["calibrate"], "--inverse-poses", None),
+    (["calibrate", "--offline", "{root}/foreign"], "--pose-file", _paths(PATHS)),
+    (["calibrate", "--offline", "{root}/foreign"], "--intrinsics", _paths(PATHS)),
+    (["calibrate"], "--eye-to-hand=1", None),
+    (["calibrate", "--eye-to-hand"], "--held-out", _ints(0, 10_000)),
+    (["calibrate"], "--held-out", st.just("5")),
+    (["calibrate", "--eye-to-hand"], "--grid-spacing", _floats(1.0)),
+    (["calibrate", "--eye-to-hand"], "--offline", _paths(["{root}/foreign"])),
+    (["reconstruct"], "", _paths(PATHS)),
+    (["reconstruct", "{root}/scan"], "--config", _paths(PATHS)),
+    (["reconstruct", "{root}/scan"], "--calibration", _paths(PATHS)),
+    (["reconstruct", "{root}/scan"], "--out", _paths(OUT_PATHS)),
+    (["reconstruct", "{root}/scan"], "--force=1", None),
+    (["reconstruct", "{root}/scan"], "--no-icp=1", None),
+    (["reconstruct", "{root}/scan"], "--no-handeye=1", None),
+    (["reconstruct", "{root}/scan"], "--formats", _names(["ply", "obj", "stl"])),
+    (["preview"], "--object", _names(["vase", "bracket", "pebble"])),
+    (["preview"], "--out", _paths(OUT_PATHS)),
+    (["preview"], "--seed", _ints(0, 2**32 - 1)),
+]
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    import planners.planner
+    import scanner.calibrate.eye_to_hand
+    import scanner.calibrate.offline
+    import scanner.preview
+    import scanner.reconstruct
+
+    monkeypatch.setattr(planners.planner.Planner, "__init__", _tripwire)
+    monkeypatch.setattr(scanner.reconstruct, "capture_views", _tripwire)
+    monkeypatch.setattr(scanner.calibrate.offline, "solve", _tripwire)
+    monkeypatch.setattr(scanner.calibrate.eye_to_hand, "grid_points", _tripwire)
+    monkeypatch.setattr(scanner.preview, "first_reachable_view", _tripwire)
+
+
+def _check(argv: list[str], option: str, value: str | None, capsys) -> None:
+    try:
+        code = main(argv)
+    except SystemExit as e:  # argparse's usage errors
+        code = e.code
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == 2, f"{argv}: exit {code}, stderr: {err}"
+    assert "Traceback" not in err, err
+    last = lines[-1] if lines else ""
+    # argparse prints its usage above its one error line; our errors are one line.
+    assert last.startswith("scanner") and "error:" in last, err
+    if not last.startswith("scanner: error:"):
+        return  # argparse names the option itself
+    name = option.split("=")[0]
+    # The option itself, or its concept in the message ("unknown pose convention ...").
+    named = [name, name.lstrip("-").replace("-", " "), name.lstrip("-").replace("-", "_")]
+    named = [n for n in named if n]
+    if value:
+        named += [value, value.strip()]
+    low = last.lower()
+    assert any(n and n.lower() in low for n in named) or _names_a_field(last), f"{argv}: {last}"
+
+
+def _names_a_field(line: str) -> bool:
+    """Our checks name the configuration field (section.name) the option sets."""
+    return any(f in line for f in ("board", "views.", "stations.", "eye_to_hand."))
+
+
+@pytest.mark.parametrize("command, option, values", CASES, ids=[f"{c[0]} {o}" for c, o, _ in CASES])
+def test_bad_option_values_are_one_line_errors(command, option, values, places, no_work, capsys):
+    def argv(value):
+        base = [c.replace("{root}", str(places)) for c in command]
+        if value is None:
+            return [*base, option]
+        value = value.replace("{root}", str(places))
+        return [*base, value] if option == "" else [*base, option, value]
+
+    if values is None:
+        _check(argv(None), option, None, capsys)
+        return
+
+    @settings(
+        max_examples=12,
+        deadline=None,
+        derandomize=True,
+        suppress_health_check=[HealthCheck.function_scoped_fixture],
+    )
+    @given(values)
+    def check(value):
+        _check(argv(value), option, value.replace("{root}", str(places)), capsys)
+
+    check()
+
+
+def test_every_option_is_covered():
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    covered = {(c[0], o.split("=")[0]) for c, o, _ in CASES}
+    for name, command in sub.choices.items():
+        for action in command._actions:
+            for flag in action.option_strings or [""]:
+                if flag in ("-h", "--help"):
+                    continue
+                if not action.option_strings and action.dest == "help":
+                    continue
+                assert (name, flag) in covered, f"scanner {name} {flag or action.dest} untested"
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root reads every file")
+def test_unreadable_config_is_a_one_line_error(tmp_path, capsys):
+    path = tmp_path / "secret.yaml"
+    path.write_text(yaml.safe_dump({"views": {"count": 5}}))
+    path.chmod(0)
+    _check(["scan", "--config", str(path)], "--config", str(path), capsys)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["reconstruct", "{root}/scan"], ["scan", "--out", "{root}/fresh", "--views", "3"]],
+)
+def test_valid_values_reach_the_tripwire(argv, places, no_work):
+    # The control: with valid values the work starts, so the cases above would notice a bad
+    # value that slips through.
+    with pytest.raises(WorkStartedError):
+        main([a.replace("{root}", str(places)) for a in argv])
