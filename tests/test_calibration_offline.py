@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.file import load_calibration
 from reconstruction.calibration.pose_files import pose_format
-from reconstruction.errors import ScannerError
+from reconstruction.errors import RefusedResultError, ScannerError
 from scanner.calibrate.offline import OfflineOptions, calibrate_directory
 from tests.conftest import shared_data
 
@@ -80,15 +80,45 @@ def test_real_circle_grid_matches_the_reference(tmp_path):
     assert "calibration: 8/8 poses used" in r.stdout
 
 
-def test_wrong_euler_convention_shows_in_the_scatter(tmp_path):
-    """The README: a wrong convention gives a scatter of tens of mm; the report makes it plain."""
+def test_wrong_euler_convention_is_refused_with_the_convention_that_fits(tmp_path):
+    """A wrong convention gives a scatter of centimetres: refused, nothing written, and the
+    message names the preset the data fit."""
     root = shared_data(REAL)
     options = _options(root)
     wrong = OfflineOptions(
         options.board, pose_format("open3dv", euler="XYZ"), intrinsics=options.intrinsics
     )
-    run = calibrate_directory(root, wrong, out_dir=tmp_path)
-    assert max(run.report["board_scatter_mm"]) > 5.0
+    with pytest.raises(RefusedResultError, match="board-in-base scatter") as e:
+        calibrate_directory(root, wrong, out_dir=tmp_path)
+    assert "--pose-convention open3dv best" in str(e.value)
+    assert not (tmp_path / "results").exists()
+
+
+def test_wrong_preset_exits_3_without_library_noise(tmp_path):
+    root = shared_data(REAL)
+    args = ["--offline", str(root), *BOARD_ARGS, "--intrinsics", str(root / "param.txt")]
+    r = _run(*args, "--pose-convention", "kuka", "--out", str(tmp_path / "out"))
+    assert r.returncode == 3, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "calibration refused" in lines[0], r.stderr
+    assert "--pose-convention open3dv" in lines[0] and "reprojection RMS" in lines[0]
+    assert "[ERROR" not in r.stderr and "Traceback" not in r.stderr  # OpenCV's log is off
+    assert not (tmp_path / "out" / "results").exists()
+    assert not list((tmp_path / "out").glob(".results.partial-*"))
+
+
+def test_offline_calibration_never_replaces_an_earlier_one(tmp_path):
+    root = shared_data(REAL)
+    args = ["--offline", str(root), *BOARD_ARGS, "--pose-convention", "open3dv"]
+    args += ["--intrinsics", str(root / "param.txt"), "--out", str(tmp_path)]
+    assert _run(*args).returncode == 0
+    first = (tmp_path / "results" / "calibration.yaml").read_bytes()
+    r = _run(*args)
+    assert r.returncode == 2 and "holds a calibration already" in r.stderr
+    assert (tmp_path / "results" / "calibration.yaml").read_bytes() == first
+    r = _run(*args, "--force")
+    assert r.returncode == 0, r.stderr
+    assert load_calibration(tmp_path / "results" / "calibration.yaml").X_FC.shape == (4, 4)
 
 
 def _copy(root, tmp_path, names):

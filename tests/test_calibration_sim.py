@@ -22,6 +22,7 @@ from robots.truth import load_truth
 from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.eye_in_hand import run_eye_in_hand
 from scanner.calibrate.eye_to_hand import run_eye_to_hand
+from scanner.calibrate.offline import OfflineOptions, calibrate_directory
 from scanner.captures import CaptureStore
 
 HANDEYE_TOL_M = 0.3e-3  # the target
@@ -84,6 +85,17 @@ def test_files_written(sim_calibration):
     )
     text = (out / "results" / "report.txt").read_text()
     assert "against the simulator's truth" in text and "OpenCV park" in text
+
+
+def test_offline_recalibration_of_a_run_keeps_the_earlier_result(sim_calibration):
+    root = sim_calibration.out_dir
+    first = (root / "results" / "calibration.yaml").read_bytes()
+    run = calibrate_directory(root, OfflineOptions(), CalibrateConfig().solver)
+    assert run.results_dir == root / "results-2"
+    assert (root / "results" / "calibration.yaml").read_bytes() == first
+    truth, _ = load_truth(root / "truth.yaml")
+    dt, dr = pose_difference(load_calibration(run.calibration_file).X_FC, truth.X_FC)
+    assert dt < HANDEYE_TOL_M and dr < HANDEYE_TOL_RAD
 
 
 def test_an_injected_bad_pose_is_rejected(sim_calibration):

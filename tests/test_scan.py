@@ -116,6 +116,12 @@ def test_killed_scan_resumes_without_duplicates(tiny_config_file, tmp_path, tiny
         store.read_capture(i)  # every capture complete and readable
     for i, data in before.items():  # nothing captured before the kill was rewritten
         assert (out / "captures" / f"{i:04d}" / "left.png").read_bytes() == data
+    # Every view captured, reconstruction not configured: a further resume changes nothing.
+    assert store.read_manifest()["status"] == "captured"
+    manifest = store.manifest_path.read_bytes()
+    r = subprocess.run(_scanner("--resume", str(out)), capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "nothing was changed" in r.stderr, r.stderr
+    assert store.manifest_path.read_bytes() == manifest
 
 
 def test_sigterm_finishes_the_current_capture_and_leaves_a_resumable_scan(
@@ -194,9 +200,54 @@ def test_bad_driver_is_a_user_error(tmp_path, driver, needle):
     assert not (tmp_path / "x").exists()
 
 
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_resume_of_a_complete_scan_changes_nothing(tiny_scan):
+    before = _snapshot(tiny_scan.scan_dir)
+    r = subprocess.run(
+        _scanner("--resume", str(tiny_scan.scan_dir)), capture_output=True, text=True, timeout=300
+    )
+    assert r.returncode == 2 and "the scan is complete; nothing was changed" in r.stderr
+    assert f"scanner reconstruct {tiny_scan.scan_dir}" in r.stderr
+    assert _snapshot(tiny_scan.scan_dir) == before
+
+
+def test_resume_compares_only_the_options_given():
+    from scanner.config import resume_request
+
+    saved = replace(ScanConfig(object="bracket"), views=replace(ScanConfig().views, count=7))
+    assert resume_request(saved, None) == saved
+    assert resume_request(saved, None, views=7, object_spec="bracket") == saved
+    assert resume_request(saved, None, views=8) != saved
+    assert resume_request(saved, None, seed=3).error_model.seed == 3
+
+
+def test_resume_with_a_config_file_compares_only_its_keys(tmp_path):
+    from scanner.config import resume_request
+
+    saved = ScanConfig(object="bracket")
+    path = tmp_path / "views.yaml"
+    path.write_text(yaml.safe_dump({"views": {"count": saved.views.count}}))
+    assert resume_request(saved, path) == saved
+    path.write_text(yaml.safe_dump({"views": {"radius_m": 0.6}}))
+    assert resume_request(saved, path).views.radius_m == 0.6
+
+
 def test_resume_refuses_a_different_object(tiny_scan):
-    with pytest.raises(ScannerError, match="different configuration"):
+    with pytest.raises(ScannerError, match="different configuration|complete"):
         run_scan(ScanConfig(object="bracket"), None, resume=tiny_scan.scan_dir)
+
+
+def test_scan_status_never_goes_back(tmp_path):
+    store = CaptureStore.create(tmp_path / "s", {"object": "vase"})
+    store.update_manifest(status="captured")
+    with pytest.raises(AssertionError, match="may not go back"):
+        store.update_manifest(status="running")
+    store.update_manifest(status="complete")
+    with pytest.raises(AssertionError, match="may not go back"):
+        store.update_manifest(status="captured")
 
 
 def test_out_directory_that_is_not_a_scan_is_refused(tmp_path):

@@ -204,8 +204,8 @@ def _convention_hint(
         return "; no pose preset fits these images either"
     name, scatter = ranked[0]
     return (
-        f"; the poses fit --pose-convention {name} best (board scatter "
-        f"{1e3 * scatter:.1f} mm under OpenCV's hand-eye)"
+        f"; the poses fit --pose-convention {name} best, without other pose options (board "
+        f"scatter {1e3 * scatter:.1f} mm under OpenCV's hand-eye)"
     )
 
 

@@ -1,0 +1,188 @@
+"""Faults during long work: kill -9 in the middle of a reconstruction or a calibration leaves no
+results folder that looks complete, and a full disk gives a clear error and loses no capture."""
+
+from __future__ import annotations
+
+import errno
+import json
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+import yaml
+
+from reconstruction.calibration.file import load_calibration
+from reconstruction.errors import StorageError
+from scanner.captures import CaptureStore
+from scanner.config import load_scan_config
+from scanner.scan import run_scan
+from tests.conftest import shared_data
+from tests.test_scan import TINY
+
+
+def _cli(*args) -> list[str]:
+    return [sys.executable, "-m", "scanner.cli", *args]
+
+
+def _wait_for(condition, proc: subprocess.Popen, timeout_s: float = 300) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and proc.poll() is None:
+        if condition():
+            return True
+        time.sleep(0.005)
+    return False
+
+
+def _status(scan_dir: Path) -> str | None:
+    try:
+        return yaml.safe_load((scan_dir / "scan.yaml").read_text()).get("status")
+    except (OSError, yaml.YAMLError, AttributeError):
+        return None
+
+
+@pytest.fixture(scope="module")
+def tiny_file(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("cfg") / "tiny.yaml"
+    path.write_text(yaml.safe_dump({**TINY, "views": {**TINY["views"], "count": 4}}))
+    return path
+
+
+def test_scan_killed_while_reconstructing_resumes_into_a_complete_result(tiny_file, tmp_path):
+    out = tmp_path / "scan"
+    proc = subprocess.Popen(
+        _cli("scan", "--config", str(tiny_file), "--out", str(out)),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    assert _wait_for(lambda: _status(out) == "captured", proc), "never reached reconstruction"
+    time.sleep(1.0)  # well inside the reconstruction (several seconds for 4 views)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert _status(out) == "captured"
+    results = out / "results"
+    # Only the scan's own report is there: nothing that looks like a reconstruction.
+    assert not (results / "reconstruction.yaml").exists()
+    assert not list(results.glob("mesh_*"))
+    assert json.loads((results / "report.json").read_text())["status"] == "captured"
+
+    r = subprocess.run(
+        _cli("scan", "--resume", str(out)), capture_output=True, text=True, timeout=600
+    )
+    assert r.returncode == 0, r.stderr
+    assert _status(out) == "complete"
+    report = json.loads((results / "report.json").read_text())
+    assert report["status"] == "complete" and report["views_captured"] == 4
+    assert report["chamfer_mm"] > 0 and (results / "reconstruction.yaml").is_file()
+    assert not list(out.glob(".results.*"))  # the killed run's partial folder is gone
+
+
+@pytest.fixture(scope="module")
+def tiny_scan_dir(tiny_file, tmp_path_factory) -> Path:
+    config = replace(load_scan_config(tiny_file), reconstruct=False)
+    return run_scan(config, tmp_path_factory.mktemp("scans") / "tiny").scan_dir
+
+
+def test_reconstruct_killed_while_writing_leaves_no_results(tiny_scan_dir, tmp_path):
+    out = tmp_path / "rec"
+    proc = subprocess.Popen(
+        _cli("reconstruct", str(tiny_scan_dir), "--out", str(out)),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    # The results are written into a hidden partial folder, renamed at the very end.
+    caught = _wait_for(lambda: any(tmp_path.glob(".rec.partial-*")), proc)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert caught, "the reconstruction finished before its write stage was seen"
+    assert not out.exists()
+    r = subprocess.run(
+        _cli("reconstruct", str(tiny_scan_dir), "--out", str(out)),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr
+    assert (out / "reconstruction.yaml").is_file() and (out / "report.json").is_file()
+    assert not list(tmp_path.glob(".rec.*"))
+
+
+@pytest.mark.parametrize("delay_s", [1.5, 2.5, 3.5])
+def test_calibration_killed_at_any_moment_leaves_nothing_that_looks_complete(tmp_path, delay_s):
+    root = shared_data("real/handeye_open3dv_eye_in_hand_circlegrid")
+    out = tmp_path / "cal"
+    args = ["calibrate", "--offline", str(root), "--board", "circles_asymmetric"]
+    args += ["--board-size", "7x11", "--board-spacing", "0.02", "--inverted"]
+    args += ["--pose-convention", "open3dv", "--intrinsics", str(root / "param.txt")]
+    proc = subprocess.Popen(
+        _cli(*args, "--out", str(out)), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    time.sleep(delay_s)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    results = out / "results"
+    if results.exists():  # it finished before the kill: then everything is there
+        assert {p.name for p in results.iterdir()} >= {
+            "calibration.yaml",
+            "report.json",
+            "report.txt",
+        }
+        load_calibration(results / "calibration.yaml")
+    r = subprocess.run(_cli(*args, "--out", str(out), "--force"), capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    load_calibration(results / "calibration.yaml")
+    assert not list(out.glob(".results.*"))
+
+
+def _full_disk_after(monkeypatch, png_writes: int) -> None:
+    """Every capture image write after the first `png_writes` fails with ENOSPC."""
+    import scanner.captures
+
+    real = scanner.captures.write_bytes
+    count = {"png": 0}
+
+    def write_bytes(path: Path, data: bytes) -> None:
+        if path.suffix == ".png":
+            count["png"] += 1
+            if count["png"] > png_writes:
+                raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        real(path, data)
+
+    monkeypatch.setattr(scanner.captures, "write_bytes", write_bytes)
+
+
+def test_full_disk_stops_the_scan_and_keeps_every_capture(tiny_file, tmp_path, monkeypatch):
+    config = replace(load_scan_config(tiny_file), reconstruct=False)
+    out = tmp_path / "full"
+    _full_disk_after(monkeypatch, png_writes=5)  # two captures, then half of the third
+    with pytest.raises(StorageError, match="no space left on the device") as e:
+        run_scan(config, out)
+    assert "the 2 captures so far are kept" in str(e.value)
+    assert f"scanner scan --resume {out}" in str(e.value)
+    store = CaptureStore.open(out)
+    assert store.captured_indices() == [0, 1]
+    assert not list((out / "captures").glob(".tmp-*"))
+    assert store.read_manifest()["status"] == "interrupted"
+    for i in (0, 1):
+        store.read_capture(i)
+
+    monkeypatch.undo()  # space freed
+    result = run_scan(None, None, resume=out)
+    assert result.report["views_captured"] == 4
+    assert CaptureStore.open(out).captured_indices() == [0, 1, 2, 3]
+
+
+def test_full_disk_while_writing_results_leaves_no_results(tiny_scan_dir, tmp_path, monkeypatch):
+    import scanner.reconstruct
+
+    def no_space(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(scanner.reconstruct, "save_outputs", no_space)
+    out = tmp_path / "rec"
+    with pytest.raises(StorageError, match="no space left on the device"):
+        scanner.reconstruct.run_reconstruct(tiny_scan_dir, results_dir=out)
+    assert not out.exists() and not list(tmp_path.glob(".rec.*"))
