@@ -33,6 +33,8 @@ from reconstruction.filtering import (
     filter_view,
 )
 from reconstruction.handeye_correction import HandEyeConfig, HandEyeResult, correct_handeye
+from reconstruction.merge import align_hangings, group_positions
+from reconstruction.pass_alignment import AlignmentConfig, PassAlignment
 from reconstruction.posegraph import PoseEdge, PoseGraphConfig, optimise_pose_graph
 from reconstruction.registration import (
     IcpConfig,
@@ -67,6 +69,8 @@ class ReconstructionConfig:
     # X_FC can explain.
     final_pose_graph: bool = False
     min_views: int = 2
+    # Putting the passes of a multi-hanging scan into one frame.
+    alignment: AlignmentConfig = field(default_factory=AlignmentConfig)
 
     def __post_init__(self) -> None:
         if self.min_views < 1:
@@ -108,7 +112,8 @@ class ViewResult:
     counts: FilterCounts
     X_WC_kinematic: np.ndarray
     X_WC_registered: np.ndarray | None
-    X_WC: np.ndarray
+    X_WC: np.ndarray  # in the first hanging's frame
+    hanging: int = 0
 
 
 @dataclass(frozen=True)
@@ -143,6 +148,7 @@ class ReconstructionResult:
     skipped_views: tuple[tuple[int, str], ...]
     notes: tuple[str, ...]
     clouds: tuple[FilteredCloud, ...]  # per kept view, in C (for `build_surfaces`)
+    alignments: tuple[PassAlignment, ...] = ()  # hangings 2, 3, ... onto the first
 
 
 def filter_views(
@@ -284,13 +290,50 @@ def build_surfaces(
     return fused, dict(zip(methods, built, strict=True)), notes
 
 
+def register_hangings(
+    clouds: Sequence[FilteredCloud],
+    X_WC_kinematic: Sequence[np.ndarray],
+    indices: Sequence[int],
+    groups: Sequence[Sequence[int]],
+    config: ReconstructionConfig,
+    timer: StageTimer,
+) -> RegisteredViews:
+    """`register_views` within each hanging (views of different hangings saw the object in
+    different places, so they are never paired), combined over all views."""
+    if len(groups) == 1:
+        return register_views(clouds, X_WC_kinematic, indices, config, timer)
+    pairs, edges, report = [], [], []
+    X_WC = list(X_WC_kinematic)
+    for group in groups:
+        part = register_views(
+            [clouds[k] for k in group],
+            [X_WC_kinematic[k] for k in group],
+            [indices[k] for k in group],
+            config,
+            timer,
+        )
+        pairs += [(group[a], group[b]) for a, b in part.pairs]
+        edges += [
+            replace(e, source=group[e.source], target=group[e.target]) for e in part.kept_edges
+        ]
+        report += part.report
+        for k, pose in zip(group, part.X_WC or ()):
+            X_WC[k] = pose  # a hanging without overlapping pairs keeps its kinematic poses
+    return RegisteredViews(
+        tuple(pairs), tuple(X_WC) if config.icp.enabled else None, tuple(edges), tuple(report)
+    )
+
+
 def reconstruct_views(
     views: Sequence[ViewCloud],
     X_FC_nominal: np.ndarray,
     config: ReconstructionConfig = ReconstructionConfig(),
     remove_points: RemovePoints | None = None,
+    hangings: Sequence[Sequence[int]] | None = None,
 ) -> ReconstructionResult:
-    """The whole reconstruction on in-memory views (see the module docstring)."""
+    """The whole reconstruction on in-memory views (see the module docstring). `hangings`:
+    the capture indices of each pass of a multi-hanging scan (None: one pass); the passes are
+    aligned into the first one's frame."""
     X_FC_nominal = check_pose(X_FC_nominal, "X_FC_nominal")
     indices = [v.index for v in views]
     if len(set(indices)) != len(indices):
@@ -307,10 +350,12 @@ def reconstruct_views(
         )
     X_WF = [v.X_WF for v in views]
     X_WC_kin = [X @ X_FC_nominal for X in X_WF]
+    groups = group_positions(views, hangings or [[v.index for v in views]])
 
     registered = RegisteredViews((), None, (), ())
     if (config.icp.enabled or config.handeye.enabled) and len(views) >= 2:
-        registered = register_views(clouds, X_WC_kin, [v.index for v in views], config, timer)
+        indices = [v.index for v in views]
+        registered = register_hangings(clouds, X_WC_kin, indices, groups, config, timer)
         if not registered.pairs:
             notes.append("no overlapping view pairs: registration and correction skipped")
 
@@ -330,6 +375,13 @@ def reconstruct_views(
                 graph = optimise_pose_graph(X_WC, registered.kept_edges, config.pose_graph)
             X_WC = list(graph.X_WC)
 
+    alignments: tuple[PassAlignment, ...] = ()
+    if len(groups) > 1:
+        with timer("align"):
+            X_WC, alignments = align_hangings(
+                views, clouds, X_WC, groups, config.alignment, config.surfaces.fused_voxel_size_m
+            )
+    hanging_of = {k: h for h, group in enumerate(groups) for k in group}
     fused, meshes, surface_notes = build_surfaces(views, clouds, X_WC, config, remove_points, timer)
     notes += surface_notes
     view_results = tuple(
@@ -339,6 +391,7 @@ def reconstruct_views(
             X_WC_kin[k],
             None if registered.X_WC is None else registered.X_WC[k],
             X_WC[k],
+            hanging_of[k],
         )
         for k, (v, c) in enumerate(zip(views, clouds))
     )
@@ -354,4 +407,5 @@ def reconstruct_views(
         tuple(skipped),
         tuple(notes),
         tuple(clouds),
+        alignments,
     )

@@ -8,6 +8,7 @@ product needs to change.
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -79,6 +80,9 @@ class Hardware:
 
     robot: RobotDriver
     camera: StereoCameraDriver
+    # Multi-hanging scans: ask the operator to re-hang the object (the message says which
+    # hanging and how) and return once it hangs still; None: this cell cannot re-hang.
+    request_rehang: Callable[[str], None] | None = None
 
 
 def load_hardware(spec: str, config: object) -> Hardware:

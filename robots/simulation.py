@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from reconstruction.camera_model import StereoCamera, default_stereo_camera
 from robots import camera_tool
+from robots.hangings import hung_pose
 from robots.objects import ObjectMesh, mesh_fingerprint, resolve_object, write_textured_obj
 from robots.rx60 import RX60
 from robots.sim_camera import SimulatedStereoCamera
@@ -55,6 +56,7 @@ def create_simulation(
     q0: np.ndarray = HOME_Q,
     meshcat=None,
     extras: Sequence[Callable] = (),
+    hanging: int = 0,
 ) -> Simulation:
     """Build the true world for `object_spec` (built-in name or mesh path) and its error model.
 
@@ -65,23 +67,42 @@ def create_simulation(
     if X_FC_nominal is None:
         X_FC_nominal = camera_tool.nominal_X_FC(stereo.baseline_m)
     mesh = None if object_spec is None else resolve_object(object_spec, cell.object_size_m)
-    truth = sample_truth(error_model, X_FC_nominal, stereo, cell.X_WO)
-    obj = (
-        None
-        if mesh is None
-        else placed_object(textured_object(mesh, error_model.seed), mesh.vertices, mesh.triangles)
-    )
+    X_WO = hung_pose(cell.X_WO, error_model.seed, hanging)
+    truth = sample_truth(error_model, X_FC_nominal, stereo, X_WO)
+    sim_robot = SimulatedRobot(robot, truth.joint_offsets_rad, q0)
+    return _assemble(cell, mesh, truth, sim_robot, meshcat, extras)
+
+
+def _assemble(
+    cell: WorkcellConfig,
+    mesh: ObjectMesh | None,
+    truth: Truth,
+    sim_robot: SimulatedRobot,
+    meshcat=None,
+    extras: Sequence[Callable] = (),
+) -> Simulation:
+    obj = None
+    if mesh is not None:
+        obj_path = textured_object(mesh, truth.seed)
+        obj = placed_object(obj_path, mesh.vertices, mesh.triangles, truth.X_WO[:3, :3])
     workcell = build_workcell(
         cell,
         obj,
         truth.X_FC,
-        stereo.X_CR,
-        robot,
+        truth.stereo.X_CR,
+        sim_robot.robot,
         renderer=True,
         meshcat=meshcat,
         extras=extras,
         include_object=mesh is not None,
+        X_WO=truth.X_WO,
     )
-    sim_robot = SimulatedRobot(robot, truth.joint_offsets_rad, q0)
     camera = SimulatedStereoCamera(workcell, truth, sim_robot.true_joint_positions)
     return Simulation(workcell, truth, sim_robot, camera, mesh)
+
+
+def rehang(sim: Simulation, hanging: int, meshcat=None) -> Simulation:
+    """The same cell, robot (where it stands) and errors with the object hung anew."""
+    cell = sim.workcell.config
+    X_WO = hung_pose(cell.X_WO, sim.truth.seed, hanging)
+    return _assemble(cell, sim.object_mesh, replace(sim.truth, X_WO=X_WO), sim.robot, meshcat)

@@ -190,23 +190,33 @@ class PlacedObject:
     p_OA: tuple[float, float, float]
 
 
-def placed_object(obj_path: Path, vertices_O: np.ndarray, triangles: np.ndarray) -> PlacedObject:
+def placed_object(
+    obj_path: Path,
+    vertices_O: np.ndarray,
+    triangles: np.ndarray,
+    R_WO: np.ndarray | None = None,
+) -> PlacedObject:
     """The rod hangs straight down the vertical through the object's centre and is attached
     where that line first meets the surface, so the software knows where the rod is (the
     vertical above the scan centre) without knowing the object. An object the line misses
-    hangs from its vertex nearest to that line among the top 1 % of heights."""
+    hangs from its vertex nearest to that line among the top 1 % of heights. `R_WO`: the
+    object's orientation in the cell (a re-hung object hangs from its new top)."""
     import open3d as o3d
 
+    R_WO = np.eye(3) if R_WO is None else np.asarray(R_WO, float)
+    up_O = R_WO.T @ np.array([0.0, 0.0, 1.0])
+    heights = vertices_O @ up_O
+    top = float(heights.max())
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(vertices_O.astype(np.float32), triangles.astype(np.uint32))
-    top = float(vertices_O[:, 2].max())
-    ray = np.array([[0.0, 0.0, top + 1.0, 0.0, 0.0, -1.0]], np.float32)
+    start = (top + 1.0) * up_O
+    ray = np.array([[*start, *(-up_O)]], np.float32)
     hit = float(scene.cast_rays(o3d.core.Tensor(ray))["t_hit"].numpy()[0])
     if np.isfinite(hit):
-        return PlacedObject(Path(obj_path), (0.0, 0.0, top + 1.0 - hit))
-    z_cut = top - 0.01 * float(np.ptp(vertices_O[:, 2]))
-    high = vertices_O[vertices_O[:, 2] >= z_cut]
-    p = high[int(np.argmin(np.linalg.norm(high[:, :2], axis=1)))]
+        return PlacedObject(Path(obj_path), tuple(float(v) for v in start - hit * up_O))
+    high = vertices_O[heights >= top - 0.01 * float(np.ptp(heights))]
+    off_axis = high - np.outer(high @ up_O, up_O)
+    p = high[int(np.argmin(np.linalg.norm(off_axis, axis=1)))]
     return PlacedObject(Path(obj_path), tuple(float(v) for v in p))
 
 
@@ -225,7 +235,9 @@ def keep_out_radius_m(config: WorkcellConfig) -> float:
     return config.object_size_m * math.sqrt(3) / 2
 
 
-def _add_object(plant: MultibodyPlant, config: WorkcellConfig, obj: PlacedObject | None) -> None:
+def _add_object(
+    plant: MultibodyPlant, config: WorkcellConfig, obj: PlacedObject | None, X_WO: np.ndarray
+) -> None:
     """The object (a welded body, so it has its own render label) and the rod it hangs from.
 
     Without a mesh (the planner's view: the object is unknown) the object is a collision-only
@@ -233,7 +245,7 @@ def _add_object(plant: MultibodyPlant, config: WorkcellConfig, obj: PlacedObject
     """
     instance = plant.AddModelInstance("object")
     body = plant.AddRigidBody(OBJECT_BODY, instance, SpatialInertia.SolidSphereWithMass(0.5, 0.05))
-    X_WO = RigidTransform(config.X_WO)
+    X_WO = RigidTransform(X_WO)
     plant.WeldFrames(plant.world_frame(), body.body_frame(), X_WO)
     p_OA = np.zeros(3)
     if obj is not None:
@@ -271,6 +283,7 @@ def build_workcell(
     meshcat=None,
     extras: Sequence[Callable[[MultibodyPlant, object], None]] = (),
     include_object: bool = True,
+    X_WO: np.ndarray | None = None,
 ) -> Workcell:
     """Robot, camera tool (frames at the given X_FC), cell boxes and object in one RobotDiagram.
 
@@ -280,6 +293,7 @@ def build_workcell(
     things before the plant is finalised, each called as extra(plant, robot_instance) (e.g. a
     calibration board, a marker on the flange); `include_object=False` leaves the object, its
     keep-out sphere and its rod out of the cell (calibration needs a clear view of the board).
+    `X_WO`: the object's pose (default the configuration's; a re-hung object differs).
     """
     builder = RobotDiagramBuilder(time_step=0.0)
     plant = builder.plant()
@@ -292,7 +306,7 @@ def build_workcell(
     add_camera_frames(plant, instance, X_FC, X_CR)
     _add_cell(plant, config)
     if include_object:
-        _add_object(plant, config, obj)
+        _add_object(plant, config, obj, config.X_WO if X_WO is None else X_WO)
     for extra in extras:
         extra(plant, instance)
     plant.Finalize()

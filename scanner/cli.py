@@ -23,6 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scan_parser(sub)
     add_calibrate_parser(sub)
     _add_reconstruct_parser(sub)
+    _add_merge_parser(sub)
     _add_preview_parser(sub)
     return parser
 
@@ -57,6 +58,12 @@ def _add_scan_parser(sub) -> None:
         help="scan directory to create (default scans/OBJECT-TIMESTAMP)",
     )
     scan.add_argument("--seed", type=int, help="seed of the simulated error model")
+    scan.add_argument(
+        "--hangings",
+        type=int,
+        help="passes over the object, re-hung between them (the simulator turns it; on "
+        "hardware the operator is asked), aligned and merged into one model (default 1)",
+    )
     scan.add_argument("--config", type=path_arg, help="scan configuration YAML")
     scan.add_argument(
         "--calibration",
@@ -124,6 +131,24 @@ def _add_reconstruct_parser(sub) -> None:
     )
 
 
+def _add_merge_parser(sub) -> None:
+    merge = sub.add_parser(
+        "merge",
+        help="align and merge scans of one object (e.g. hung differently) into one model",
+        description="Align the passes of two or more scan directories (each of one or more "
+        "hangings) into the first one's frame, verify every alignment, and build one model. "
+        "An alignment that fails verification writes nothing and exits with code 3.",
+    )
+    merge.add_argument("scan_dirs", type=path_arg, nargs="+", metavar="SCAN_DIR")
+    merge.add_argument("--out", type=path_arg, required=True, help="results folder to create")
+    merge.add_argument(
+        "--config", type=path_arg, help="processing YAML; default: the first scan's settings"
+    )
+    merge.add_argument(
+        "--force", action="store_true", help="replace the merged model already in --out"
+    )
+
+
 def _add_preview_parser(sub) -> None:
     preview = sub.add_parser(
         "preview",
@@ -153,6 +178,7 @@ def _scan(args: argparse.Namespace) -> int:
         seed=args.seed,
         calibration_file=str(args.calibration) if args.calibration else None,
         driver=args.driver,
+        hangings=args.hangings,
     )
     if args.resume is not None:
         if args.out is not None or args.force:
@@ -244,6 +270,28 @@ def _reconstruct(args: argparse.Namespace) -> int:
     return 0
 
 
+def _merge(args: argparse.Namespace) -> int:
+    from scanner.merge import run_merge
+
+    run = run_merge(args.scan_dirs, args.out, args.config, args.force)
+    r = run.report
+    print(
+        f"merge: {len(r['hangings'])} hangings, {r['captures_used']} captures; alignment "
+        + ", ".join(
+            f"hanging {p['hanging']}: overlap {p['overlap']:.2f}, RMS {p['inlier_rms_mm']:.2f} mm"
+            for p in r["hangings"]
+            if "overlap" in p
+        )
+    )
+    if "chamfer_mm" in r:
+        print(
+            f"{r['primary_surface']}: chamfer {r['chamfer_mm']:.3f} mm, completeness(2 mm) "
+            f"{r['completeness_2mm']:.3f}; alignment error {r['alignment_error_mm']:.3f} mm"
+        )
+    print(f"results: {run.results_dir}")
+    return 0
+
+
 def _run(args: argparse.Namespace) -> int:
     if getattr(args, "out", None) is not None:
         from scanner.results_folder import require_creatable
@@ -266,6 +314,8 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     if args.command == "reconstruct":
         return _reconstruct(args)
+    if args.command == "merge":
+        return _merge(args)
     raise AssertionError(f"unhandled command {args.command}")
 
 

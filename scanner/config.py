@@ -60,6 +60,9 @@ class ProcessingConfig:
         require_count("processing", self, ("metric_samples",), minimum=1000)
 
 
+MAX_HANGINGS = 6
+
+
 @dataclass(frozen=True)
 class ScanConfig:
     object: str = "vase"
@@ -80,6 +83,12 @@ class ScanConfig:
     # Real hardware instead of the simulator: 'package.module:factory', factory(config) ->
     # robots.drivers.Hardware (robot + stereo camera drivers). None: the Drake simulation.
     driver: str | None = None
+    # Passes over the object, re-hung (turned) between them; the passes are aligned and merged
+    # into one model. One hanging never sees the top of a hung object.
+    hangings: int = 1
+
+    def __post_init__(self) -> None:
+        require_count("scan", self, ("hangings",), minimum=1, maximum=MAX_HANGINGS)
 
     @property
     def scan_center_m(self) -> tuple[float, float, float]:
@@ -123,6 +132,7 @@ def with_overrides(
     seed: int | None = None,
     calibration_file: str | None = None,
     driver: str | None = None,
+    hangings: int | None = None,
 ) -> ScanConfig:
     """Command-line flags win over the file; each override is validated like the file, and
     an error names the flag."""
@@ -146,4 +156,6 @@ def with_overrides(
         config = replace(config, calibration_file=calibration_file)
     if driver is not None:
         config = replace(config, driver=driver)
+    if hangings is not None:
+        config = for_flag("--hangings", lambda: replace(config, hangings=hangings))
     return config

@@ -92,10 +92,31 @@ class SavedScan:
     stereo: StereoCamera
     X_FC_nominal: np.ndarray
     views: tuple[PlannedView, ...]
+    hangings: tuple[tuple[int, ...], ...]  # the view indices of each pass
+    hanging: int  # the pass the object hangs for now (the last one started)
 
     @property
     def root(self) -> Path:
         return self.store.root
+
+    def hanging_of(self, index: int) -> int:
+        return next(p for p, views in enumerate(self.hangings) if index in views)
+
+
+def _hangings(manifest: dict, views: list[PlannedView], where: str) -> tuple[tuple[int, ...], ...]:
+    """The passes' view indices; a scan from before hangings is one pass of every view."""
+    passes = manifest.get("hangings")
+    if passes is None:
+        return (tuple(v.index for v in views),)
+    known = {v.index for v in views}
+    try:
+        out = tuple(tuple(int(i) for i in p) for p in passes)
+    except (TypeError, ValueError):
+        raise ScannerError(f"{where}: hangings must be lists of view indices") from None
+    flat = [i for p in out for i in p]
+    if not out or sorted(flat) != sorted(known):
+        raise ScannerError(f"{where}: hangings do not partition the viewpoints")
+    return out
 
 
 def open_scan(scan_dir: Path) -> SavedScan:
@@ -106,11 +127,18 @@ def open_scan(scan_dir: Path) -> SavedScan:
     missing = [k for k in ("config", "camera", "X_FC_nominal", "viewpoints") if k not in manifest]
     if missing:
         raise ScannerError(f"{where}: not a scan manifest (missing {', '.join(missing)})")
+    views = views_from_manifest(manifest["viewpoints"], where)
+    hangings = _hangings(manifest, views, where)
+    hanging = manifest.get("hanging", 0)
+    if not isinstance(hanging, int) or not 0 <= hanging < len(hangings):
+        raise ScannerError(f"{where}: hanging must be a pass number below {len(hangings)}")
     return SavedScan(
         store,
         manifest,
         scan_config_from_dict(manifest["config"], f"{where}:config"),
         stereo_camera_from_dict(manifest["camera"], f"{where}:camera"),
         check_pose(manifest["X_FC_nominal"], f"{where}:X_FC_nominal"),
-        tuple(views_from_manifest(manifest["viewpoints"], where)),
+        tuple(views),
+        hangings,
+        hanging,
     )

@@ -24,14 +24,17 @@ import numpy as np
 import yaml
 
 from reconstruction.camera_model import StereoCamera
+from reconstruction.coverage import coverage_estimate
 from reconstruction.errors import ScannerError
 from reconstruction.metrics import TriangleSurface, evaluate_surface, handeye_error
 from reconstruction.outputs import save_outputs, summary
+from reconstruction.pass_alignment import alignment_error
 from reconstruction.pipeline import ReconstructionConfig, ReconstructionResult, reconstruct_views
 from reconstruction.stage_timer import StageTimer
 from reconstruction.stereo.cloud import depth_image, view_cloud
 from reconstruction.stereo.params import StereoParams
 from reconstruction.stereo.rectification import Rectification, compute_rectification
+from reconstruction.transforms import invert, transform_points
 from reconstruction.views import ViewCloud
 from robots.workcell import keep_out_radius_m
 from scanner.captures import atomic_write_text
@@ -100,14 +103,66 @@ def _truth(scan_dir: Path):
     if len(mesh.triangles) == 0:
         raise ScannerError(f"{scan_dir}: truth mesh missing or empty")
     surface = TriangleSurface(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
-    return truth, surface
+    return truth, surface, raw
 
 
-def _true_camera_centres(truth, joints: dict) -> list[np.ndarray]:
+def _true_camera_centres(views: Gathered, to_first: dict[int, np.ndarray]) -> list:
+    """True camera centres of every view, in the first hanging's frame (`to_first`: capture
+    index -> the true transform of its hanging's placement onto the first's)."""
     from robots.kinematics import Kinematics
 
     kin = Kinematics()
-    return [(kin.X_WF(q + truth.joint_offsets_rad) @ truth.X_FC)[:3, 3] for q in joints.values()]
+    centres = []
+    for i, q in views.joints.items():
+        truth = views.truths[views.scan_of[i]][0]
+        X_WC = kin.X_WF(q + truth.joint_offsets_rad) @ truth.X_FC
+        centres.append(transform_points(to_first[i], X_WC[:3, 3][None])[0])
+    return centres
+
+
+def _object_poses(truth) -> list[np.ndarray]:
+    """The object's true pose in each hanging of one scan."""
+    raw = truth[2]
+    return [np.array(X, float) for X in raw.get("X_WO_hangings", [truth[0].X_WO])]
+
+
+def _to_first_hanging(views: Gathered) -> list[np.ndarray] | None:
+    """Per hanging (over all scans), the true transform of its placement onto the first
+    scan's first hanging; None without truth for every scan."""
+    if any(t is None for t in views.truths):
+        return None
+    poses = [X for t in views.truths for X in _object_poses(t)]
+    if len(poses) != len(views.hangings):
+        return None
+    return [poses[0] @ invert(X) for X in poses]
+
+
+def _alignment_report(result, to_first, surface, hangings: int) -> dict:
+    """Per hanging its views and alignment figures, and (with truth) the alignment errors."""
+    passes = []
+    for h in range(hangings):
+        views = [v.index for v in result.views if v.hanging == h]
+        record: dict = {"hanging": h + 1, "views": len(views)}
+        a = next((a for a in result.alignments if a.hanging == h), None)
+        if a is not None:
+            record.update(
+                overlap=a.overlap,
+                inlier_rms_mm=1e3 * a.inlier_rms_m,
+                free_space_violation=a.free_space_violation,
+                ambiguity=a.ambiguity,
+                verified=a.verified,
+            )
+            if surface is not None:
+                points_h = transform_points(invert(to_first[h]), surface.vertices)
+                dt, dr = alignment_error(a.T, to_first[h], points_h)
+                record.update(alignment_error_mm=1e3 * dt, alignment_error_deg=math.degrees(dr))
+        passes.append(record)
+    out: dict = {"hangings": passes}
+    errors = [p for p in passes if "alignment_error_mm" in p]
+    if errors:
+        out["alignment_error_mm"] = max(p["alignment_error_mm"] for p in errors)
+        out["alignment_error_deg"] = max(p["alignment_error_deg"] for p in errors)
+    return out
 
 
 def _geometry_filter(
@@ -160,9 +215,12 @@ def _with_roi_centre(config: ReconstructionConfig, centre: np.ndarray) -> Recons
     return replace(config, filter=replace(config.filter, roi=roi))
 
 
-def _metrics(result, truth, joints: dict, processing: ProcessingConfig) -> dict:
-    """The report's accuracy keys: the primary surface's metrics first, then all of them."""
-    centres = _true_camera_centres(truth[0], joints)
+def _metrics(result, views: Gathered, processing: ProcessingConfig, to_first) -> dict:
+    """The report's accuracy keys (against the first scan's truth, in its first hanging's
+    frame): the primary surface's metrics first, then all of them."""
+    hanging_of = {i: h for h, indices in enumerate(views.hangings) for i in indices}
+    centres = _true_camera_centres(views, {i: to_first[hanging_of[i]] for i in views.joints})
+    truth = views.truths[0]
     metrics = evaluate(result, truth[0], truth[1], centres, processing.metric_samples)
     primary = metrics["surfaces"].get(processing.primary_surface)
     if primary is None:
@@ -192,6 +250,54 @@ def _write_results(result, processing: ProcessingConfig, truth, out: Path) -> di
     }
 
 
+# Capture indices of the k-th scan of a merge are offset by k * INDEX_STRIDE.
+INDEX_STRIDE = 100_000
+
+
+@dataclass(frozen=True, eq=False)
+class Gathered:
+    """The views of one or more scans, ready for `reconstruct_views`: indices made unique
+    across scans, the passes (hangings) of all of them, and per view its scan."""
+
+    views: list[ViewCloud]
+    skipped: list[dict]
+    joints: dict[int, np.ndarray]
+    hangings: list[list[int]]
+    scan_of: dict[int, int]
+    truths: list  # per scan: (Truth, true surface, truth file) or None
+    remove: object  # remove_points(points_W, index) for all scans
+
+
+def gather_views(
+    scans: list[SavedScan],
+    processing: ProcessingConfig,
+    X_FC: np.ndarray | None = None,
+    stereo: StereoCamera | None = None,
+) -> Gathered:
+    """Stereo clouds of every capture of every scan (each with its own camera model and X_FC
+    unless given), with the point filter of each scan's cell."""
+    out = Gathered([], [], {}, [], {}, [], None)
+    filters = []
+    for k, scan in enumerate(scans):
+        camera = stereo or scan.stereo
+        X = scan.X_FC_nominal if X_FC is None else X_FC
+        captured = capture_views(scan, compute_rectification(camera), X, processing.stereo)
+        offset = k * INDEX_STRIDE
+        out.views.extend(replace(v, index=v.index + offset) for v in captured.views)
+        out.skipped.extend({**d, "index": d["index"] + offset} for d in captured.skipped)
+        out.joints.update({i + offset: q for i, q in captured.joints.items()})
+        out.hangings.extend([i + offset for i in h] for h in scan.hangings)
+        out.scan_of.update({v.index + offset: k for v in captured.views})
+        out.truths.append(_truth(scan.root))
+        filters.append(
+            _geometry_filter(scan.config, X, camera, captured.joints, processing.remove_margin_m)
+        )
+    remove = lambda points_W, index: filters[index // INDEX_STRIDE](  # noqa: E731
+        points_W, index % INDEX_STRIDE
+    )
+    return replace(out, remove=remove)
+
+
 def run_reconstruct(
     scan: Path | SavedScan,
     processing: ProcessingConfig | None = None,
@@ -201,33 +307,50 @@ def run_reconstruct(
 ) -> ReconstructRun:
     """Reconstruct a saved scan (a directory, or one already opened). Defaults: the scan's own
     processing settings, camera model and X_FC (from its manifest); results in SCAN_DIR/results."""
-    t0 = time.perf_counter()
     scan = scan if isinstance(scan, SavedScan) else open_scan(scan)
-    processing = processing or scan.config.processing
-    stereo = stereo or scan.stereo
-    X_FC = scan.X_FC_nominal if X_FC is None else X_FC
-    config = _with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
+    out = Path(results_dir) if results_dir else scan.store.results_dir
+    return reconstruct_scans([scan], out, processing, X_FC, stereo)
+
+
+def reconstruct_scans(
+    scans: list[SavedScan],
+    out: Path,
+    processing: ProcessingConfig | None = None,
+    X_FC: np.ndarray | None = None,
+    stereo: StereoCamera | None = None,
+) -> ReconstructRun:
+    """One model from the captures of one or more scans: every hanging of every scan,
+    aligned into the first one's frame (refused, with nothing written, when an alignment does
+    not verify). Results are written to `out` as a whole, or not at all."""
+    t0 = time.perf_counter()
+    first = scans[0]
+    processing = processing or first.config.processing
+    config = _with_roi_centre(processing.reconstruction, np.array(first.config.scan_center_m))
     timer = StageTimer()
 
     with timer("stereo"):
-        captured = capture_views(scan, compute_rectification(stereo), X_FC, processing.stereo)
-    if len(captured.views) < config.min_views:
+        views = gather_views(scans, processing, X_FC, stereo)
+    if len(views.views) < config.min_views:
         raise ScannerError(
-            f"{scan.root}: {len(captured.views)} usable captures, the reconstruction needs at "
+            f"{first.root}: {len(views.views)} usable captures, the reconstruction needs at "
             f"least {config.min_views}"
         )
-    remove = _geometry_filter(
-        scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m
-    )
+    X_FC = first.X_FC_nominal if X_FC is None else X_FC
+    hangings = views.hangings if len(views.hangings) > 1 else None
     with timer("reconstruct"):
-        result = reconstruct_views(captured.views, X_FC, config, remove)
+        result = reconstruct_views(views.views, X_FC, config, views.remove, hangings)
 
-    report: dict = {"captures_used": len(captured.views), "captures_skipped": captured.skipped}
-    truth = _truth(scan.root)
-    if truth is not None:
+    report: dict = {"captures_used": len(views.views), "captures_skipped": views.skipped}
+    with timer("coverage"):
+        report["coverage_estimate"] = coverage_estimate(result.fused)
+    truth = views.truths[0]
+    to_first = _to_first_hanging(views)
+    if to_first is not None:
         with timer("evaluate"):
-            report.update(_metrics(result, truth, captured.joints, processing))
-    out = Path(results_dir) if results_dir else scan.store.results_dir
+            report.update(_metrics(result, views, processing, to_first))
+    if hangings:
+        surface = truth[1] if to_first is not None else None
+        report.update(_alignment_report(result, to_first, surface, len(views.hangings)))
     earlier = _earlier_report(out)
     with staged_folder(out) as staging:
         with timer("write"):

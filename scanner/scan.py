@@ -3,6 +3,7 @@ store every capture, then reconstruct and report."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import signal
@@ -17,6 +18,7 @@ import numpy as np
 from planners.tour import Tour, plan_tour
 from reconstruction.errors import ScannerError, StorageError
 from reconstruction.stage_timer import StageTimer
+from robots.hangings import hung_pose
 from robots.kinematics import Kinematics
 from robots.simulation import Simulation, object_vertices_W
 from robots.truth import save_truth
@@ -38,7 +40,7 @@ class ScanResult:
     report: dict
 
 
-def _interruptible(machine: DecisionMaker):
+def _interruptible(machine):
     """Ctrl-C / SIGTERM ask the machine to stop after the current capture."""
 
     @contextmanager
@@ -82,7 +84,7 @@ def _log_file(path: Path):
         handler.close()
 
 
-def _write_truth(store: CaptureStore, sim: Simulation) -> None:
+def _write_truth(store: CaptureStore, sim: Simulation, hangings: int) -> None:
     import open3d as o3d
 
     vertices_W = object_vertices_W(sim.object_mesh, sim.truth.X_WO)
@@ -92,7 +94,13 @@ def _write_truth(store: CaptureStore, sim: Simulation) -> None:
     )
     o3d.io.write_triangle_mesh(str(store.root / ".truth_mesh.tmp.ply"), mesh)
     (store.root / ".truth_mesh.tmp.ply").rename(store.root / "truth_mesh.ply")
-    save_truth(sim.truth, store.root / "truth.yaml", {"mesh": "truth_mesh.ply"})
+    # Every hanging's object pose (the simulator draws them from the seed; only the
+    # evaluation reads them). The mesh is the object in the first hanging.
+    X_WO_hangings = [
+        hung_pose(sim.workcell.config.X_WO, sim.truth.seed, p).tolist() for p in range(hangings)
+    ]
+    extra = {"mesh": "truth_mesh.ply", "X_WO_hangings": X_WO_hangings}
+    save_truth(sim.truth, store.root / "truth.yaml", extra)
 
 
 def _open_resumed(resume: Path, requested: ScanConfig | None) -> SavedScan:
@@ -125,15 +133,24 @@ def _start_new(
         lambda vp: world.planner.reachable(vp, q_home),
         lambda q: world.planner.estimate_duration_s(q_home, q),
     )
-    views = list(plan.views)
+    # The same viewpoints in every hanging (they look at the scan centre, where each hanging
+    # puts the object's centre); views of pass p are numbered p * count + k.
+    count = len(plan.views)
+    views = [
+        dataclasses.replace(v, index=p * count + v.index)
+        for p in range(config.hangings)
+        for v in plan.views
+    ]
     plan_info = {
         "reachable_fraction": plan.reachable_fraction,
         "dropped_views": [{"direction": d.direction, "reason": d.reason} for d in plan.dropped],
+        "hangings": [[p * count + v.index for v in plan.views] for p in range(config.hangings)],
+        "hanging": 0,
     }
     manifest = new_manifest(config, world.stereo, world.X_FC, views, plan_info)
     store = CaptureStore.create(out_dir, manifest, force)
     if world.sim is not None:
-        _write_truth(store, world.sim)
+        _write_truth(store, world.sim, config.hangings)
     return store, views
 
 
@@ -177,7 +194,7 @@ def _scan_report(
     config: ScanConfig,
     store: CaptureStore,
     summary: RunSummary,
-    tour: Tour,
+    tour_cost_s: float,
     total: int,
     timer: StageTimer,
     wall0: float,
@@ -194,7 +211,7 @@ def _scan_report(
         "views_dropped_unreachable": len(manifest.get("dropped_views", [])),
         "reachable_fraction": manifest.get("reachable_fraction"),
         "robot_motion_s": summary.robot_motion_s,
-        "estimated_tour_s": tour.cost_s,
+        "estimated_tour_s": tour_cost_s,
         "wall_s": time.perf_counter() - wall0,
         "stage_s": {
             **timer.seconds,
@@ -230,32 +247,27 @@ def run_scan(
     timer = StageTimer()
     wall0 = time.perf_counter()
     config = saved.config if saved else (config or ScanConfig())
+    hanging = saved.hanging if saved else 0
     with timer("setup"):
         viewer = _meshcat(meshcat)
-        world = setup_world(config, viewer)
+        world = setup_world(config, viewer, hanging)
         live = _live_view(world, viewer)
     if saved is None:
         with timer("viewpoints"):
             store, views = _start_new(config, out_dir, force, world)
+        hangings = _passes(views, config.hangings)
     else:
-        store, views = saved.store, list(saved.views)
+        store, views, hangings = saved.store, list(saved.views), saved.hangings
         store.update_manifest(status="running")
-    done = set(store.captured_indices())
-    todo = [v for v in views if v.index not in done]
-    with timer("ordering"):
-        tour = plan_tour(world.robot.joint_positions(), todo, world.planner.estimate_duration_s)
-    machine = _decision_maker(config, world, store, views, todo, tour, live)
-    if progress:
-        progress(len(done), len(views))
-        machine.on_view_done = lambda _: progress(len(store.captured_indices()), len(views))
-    with timer("capture"), _interruptible(machine), _log_file(store.root / "scan.log"):
-        summary = _run_machine(machine, store)
+    run = _PassRunner(config, world, store, views, live, viewer, timer, progress)
+    with _interruptible(run), _log_file(store.root / "scan.log"):
+        summary = run.passes(hangings, hanging)
     status = "interrupted" if summary.state.value == "aborted" else "captured"
     skipped = [{"index": o.index, "reason": o.reason} for o in summary.skipped]
     store.update_manifest(status=status, skipped_views=skipped)
 
     def report() -> dict:
-        return _scan_report(config, store, summary, tour, len(views), timer, wall0)
+        return _scan_report(config, store, summary, run.tour_cost_s, len(views), timer, wall0)
 
     _write_scan_report(store, report())
     if config.reconstruct and status == "captured":
@@ -264,6 +276,80 @@ def run_scan(
         store.update_manifest(status="complete")
         _write_scan_report(store, report())
     return ScanResult(store.root, _read_report(store))
+
+
+def _passes(views: list[PlannedView], hangings: int) -> tuple[tuple[int, ...], ...]:
+    count = len(views) // hangings
+    return tuple(
+        tuple(v.index for v in views[p * count : (p + 1) * count]) for p in range(hangings)
+    )
+
+
+class _PassRunner:
+    """Runs the decision maker over each hanging's views in turn, re-hanging the object in
+    between (the simulator turns it; hardware asks the operator), and sums up the runs."""
+
+    def __init__(self, config, world, store, views, live, viewer, timer, progress) -> None:
+        self.config, self.world, self.store = config, world, store
+        self.views, self.live, self.viewer = views, live, viewer
+        self.timer, self.progress = timer, progress
+        self.tour_cost_s = 0.0
+        self.machine: DecisionMaker | None = None
+        self.abort_requested = False
+
+    def request_abort(self) -> None:
+        self.abort_requested = True
+        if self.machine is not None:
+            self.machine.request_abort()
+
+    def passes(self, hangings: tuple[tuple[int, ...], ...], first: int) -> RunSummary:
+        summaries = []
+        for hanging in range(first, len(hangings)):
+            if hanging > first:
+                with self.timer("rehang"):
+                    self.world = self.world.rehang(hanging, len(hangings), self.viewer)
+                self.store.update_manifest(hanging=hanging)
+                log.info("re-hung the object for hanging %d of %d", hanging + 1, len(hangings))
+            summaries.append(self._one_pass(set(hangings[hanging])))
+            if summaries[-1].state.value == "aborted" or self.abort_requested:
+                break
+        return _combined(summaries)
+
+    def _one_pass(self, indices: set[int]) -> RunSummary:
+        done = set(self.store.captured_indices())
+        todo = [v for v in self.views if v.index in indices and v.index not in done]
+        robot = self.world.robot
+        with self.timer("ordering"):
+            tour = plan_tour(robot.joint_positions(), todo, self.world.planner.estimate_duration_s)
+        self.tour_cost_s += tour.cost_s
+        machine = _decision_maker(
+            self.config, self.world, self.store, self.views, todo, tour, self.live
+        )
+        self.machine = machine
+        if self.abort_requested:
+            machine.request_abort()
+        total = len(self.views)
+        if self.progress:
+            self.progress(len(done), total)
+            machine.on_view_done = lambda _: self.progress(
+                len(self.store.captured_indices()), total
+            )
+        with self.timer("capture"):
+            return _run_machine(machine, self.store)
+
+
+def _combined(summaries: list[RunSummary]) -> RunSummary:
+    stage_s: dict[str, float] = {}
+    for s in summaries:
+        for k, v in s.stage_s.items():
+            stage_s[k] = stage_s.get(k, 0.0) + v
+    return RunSummary(
+        summaries[-1].state,
+        [o for s in summaries for o in s.outcomes],
+        sum(s.robot_motion_s for s in summaries),
+        stage_s,
+        [t for s in summaries for t in s.transitions],
+    )
 
 
 def _run_machine(machine: DecisionMaker, store: CaptureStore) -> RunSummary:

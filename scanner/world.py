@@ -17,8 +17,8 @@ from reconstruction.stereo.params import disparity_window, object_depth_window
 from reconstruction.stereo.rectification import compute_rectification
 from reconstruction.transforms import transform_points
 from robots import camera_tool
-from robots.drivers import RobotDriver, StereoCameraDriver, load_hardware
-from robots.simulation import Simulation, cache_dir, create_simulation
+from robots.drivers import Hardware, RobotDriver, StereoCameraDriver, load_hardware
+from robots.simulation import Simulation, cache_dir, create_simulation, rehang
 from robots.workcell import Workcell, build_workcell, keep_out_radius_m
 from scanner.config import ScanConfig
 
@@ -35,6 +35,23 @@ class ScanWorld:
     X_FC: np.ndarray
     sim: Simulation | None  # None on hardware: no truth
     shown_cell: Workcell | None  # the cell Meshcat shows (built with meshcat=)
+    hardware: Hardware | None = None
+
+    def rehang(self, hanging: int, hangings: int, meshcat=None) -> ScanWorld:
+        """The world after the object was hung anew for pass `hanging` (of `hangings`)."""
+        if self.sim is not None:
+            sim = rehang(self.sim, hanging, meshcat)
+            return replace(self, camera=sim.camera, sim=sim, shown_cell=sim.workcell)
+        if self.hardware is None or self.hardware.request_rehang is None:
+            raise ScannerError(
+                "this driver cannot ask for a re-hang (Hardware.request_rehang is None): scan "
+                "one hanging per run and combine the scans with scanner merge"
+            )
+        self.hardware.request_rehang(
+            f"hanging {hanging + 1} of {hangings}: hang the object from another point, turned "
+            "by 90-180 deg (upside down is best), then confirm"
+        )
+        return self
 
     @property
     def joint_offsets_rad(self) -> np.ndarray:
@@ -86,7 +103,7 @@ def check_stereo_reach(config: ScanConfig, stereo: StereoCamera) -> None:
         )
 
 
-def simulated_cell(config: ScanConfig, meshcat=None) -> Simulation:
+def simulated_cell(config: ScanConfig, meshcat=None, hanging: int = 0) -> Simulation:
     """The true simulated world of a scan: its object, error model and camera design."""
     design = config.camera.stereo_camera()
     return create_simulation(
@@ -96,10 +113,11 @@ def simulated_cell(config: ScanConfig, meshcat=None) -> Simulation:
         design,
         camera_tool.nominal_X_FC(design.baseline_m),
         meshcat=meshcat,
+        hanging=hanging,
     )
 
 
-def setup_world(config: ScanConfig, meshcat=None) -> ScanWorld:
+def setup_world(config: ScanConfig, meshcat=None, hanging: int = 0) -> ScanWorld:
     """The simulated cell (or the configured driver's hardware) and a planner on the software's
     view of the cell, after checking that the stereo camera can measure at the standoff."""
     stereo, X_FC = software_camera(config)
@@ -108,7 +126,7 @@ def setup_world(config: ScanConfig, meshcat=None) -> ScanWorld:
     if config.driver:
         hardware = load_hardware(config.driver, config)
     else:
-        sim = simulated_cell(config, meshcat)
+        sim = simulated_cell(config, meshcat, hanging)
     planner_cell = build_workcell(
         config.cell, None, X_FC, stereo.X_CR, meshcat=meshcat if hardware else None
     )
@@ -116,7 +134,9 @@ def setup_world(config: ScanConfig, meshcat=None) -> ScanWorld:
     roadmaps = config.planner.cache_dir or str(cache_dir() / "roadmaps")
     planner = Planner(planner_cell, X_FC, stereo.X_CR, replace(config.planner, cache_dir=roadmaps))
     if hardware:
-        return ScanWorld(hardware.robot, hardware.camera, planner, stereo, X_FC, None, planner_cell)
+        return ScanWorld(
+            hardware.robot, hardware.camera, planner, stereo, X_FC, None, planner_cell, hardware
+        )
     return ScanWorld(sim.robot, sim.camera, planner, stereo, X_FC, sim, sim.workcell)
 
 

@@ -37,10 +37,10 @@ def places(tmp_path_factory):
     (root / "list.yaml").write_text("- 1\n- 2\n")
     (root / "broken.yaml").write_text("views: {count: [\n")
     (root / "binary.yaml").write_bytes(bytes(range(256)))
-    scan = root / "scan"
     config = ScanConfig()
     stereo = config.camera.stereo_camera()
-    CaptureStore.create(scan, new_manifest(config, stereo, np.eye(4), [], {}))
+    for name in ("scan", "scan2"):
+        CaptureStore.create(root / name, new_manifest(config, stereo, np.eye(4), [], {}))
     foreign = root / "foreign"
     foreign.mkdir()
     for k in range(3):
@@ -97,6 +97,7 @@ CASES = [
     (["scan"], "--radius", _floats(3.0)),
     (["scan"], "--out", _paths(OUT_PATHS)),
     (["scan"], "--seed", _ints(0, 2**32 - 1)),
+    (["scan"], "--hangings", _ints(1, 6)),
     (["scan"], "--config", _paths(PATHS)),
     (["scan"], "--calibration", _paths(PATHS)),
     (["scan"], "--driver", _names([])),
@@ -143,6 +144,11 @@ CASES = [
     (["reconstruct", "{root}/scan"], "--no-icp=1", None),
     (["reconstruct", "{root}/scan"], "--no-handeye=1", None),
     (["reconstruct", "{root}/scan"], "--formats", _names(["ply", "obj", "stl"])),
+    (["merge", "--out", "{root}/m"], "", _paths([*PATHS, "{root}/scan"])),
+    (["merge", "{root}/scan", "{root}/scan", "--out", "{root}/m"], "", _paths(["{root}/scan"])),
+    (["merge", "{root}/scan", "{root}/scan2"], "--out", _paths(OUT_PATHS)),
+    (["merge", "{root}/scan", "{root}/scan2", "--out", "{root}/m"], "--config", _paths(PATHS)),
+    (["merge", "{root}/scan", "{root}/scan2", "--out", "{root}/m"], "--force=1", None),
     (["preview"], "--object", _names(["vase", "bracket", "pebble"])),
     (["preview"], "--out", _paths(OUT_PATHS)),
     (["preview"], "--seed", _ints(0, 2**32 - 1)),
@@ -243,7 +249,11 @@ def test_unreadable_config_is_a_one_line_error(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     "argv",
-    [["reconstruct", "{root}/scan"], ["scan", "--out", "{root}/fresh", "--views", "3"]],
+    [
+        ["reconstruct", "{root}/scan"],
+        ["scan", "--out", "{root}/fresh", "--views", "3"],
+        ["merge", "{root}/scan", "{root}/scan2", "--out", "{root}/merged"],
+    ],
 )
 def test_valid_values_reach_the_tripwire(argv, places, no_work):
     # The control: with valid values the work starts, so the cases above would notice a bad

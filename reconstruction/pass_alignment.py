@@ -1,0 +1,270 @@
+"""Aligning the passes of a multi-hanging scan: one rigid transform per pass, found without
+truth and verified before it is used.
+
+Within a pass the robot poses register the views; between passes the object was re-hung, so
+one rigid transform T (pass frame -> reference frame) is unknown. It is estimated by global
+registration (FPFH features, Open3D's RANSAC, several independent runs for several
+hypotheses), each hypothesis refined by point-to-plane ICP, and the best one verified:
+- overlap: the fraction of the pass's points with a reference point within the inlier distance;
+- inlier RMS: the distance of those points, comparable to the stereo noise;
+- free space: points of the pass must not lie in space the reference views saw through (in
+  front of what a reference camera measured along that ray);
+- ambiguity: a distinct hypothesis (another rotation) that scores nearly as well means the
+  object's shape cannot tell them apart (symmetry); the alignment is refused then.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from reconstruction.checks import require_count, require_fraction, require_positive
+from reconstruction.transforms import invert, rotation_angle_rad, transform_points
+from reconstruction.views import DepthImage
+
+
+@dataclass(frozen=True)
+class AlignmentConfig:
+    """Global alignment of passes (`reconstruction.alignment`; lengths in metres).
+
+    voxel_m: the features' sampling (normals over 2.5, FPFH over 5 voxels). runs: independent
+    RANSAC runs (hypotheses). distinct_rotation_rad: hypotheses closer than this are one.
+    min_overlap, max_inlier_rms_m, max_free_space_violation: verification limits.
+    inlier_distance_m: a point within this of the reference counts as overlapping.
+    free_space_margin_m: how far in front of a measured surface a point must lie to count as
+    seen-through space. max_ambiguity: a distinct runner-up scoring above this fraction of the
+    best makes the alignment ambiguous.
+    """
+
+    voxel_m: float = 0.003
+    runs: int = 8
+    ransac_iterations: int = 100_000
+    distinct_rotation_rad: float = math.radians(10.0)
+    inlier_distance_m: float = 0.0015
+    min_overlap: float = 0.2
+    max_inlier_rms_m: float = 0.001
+    free_space_margin_m: float = 0.003
+    max_free_space_violation: float = 0.1
+    max_ambiguity: float = 0.9
+
+    def __post_init__(self) -> None:
+        require_positive(
+            "alignment",
+            self,
+            (
+                "voxel_m",
+                "distinct_rotation_rad",
+                "inlier_distance_m",
+                "max_inlier_rms_m",
+                "free_space_margin_m",
+            ),
+        )
+        require_count("alignment", self, ("runs", "ransac_iterations"))
+        require_fraction(
+            "alignment", self, ("min_overlap", "max_free_space_violation", "max_ambiguity")
+        )
+
+
+@dataclass(frozen=True)
+class SeenSpace:
+    """What the reference views saw: their depth images and camera poses in the reference
+    frame (for the free-space test)."""
+
+    depths: tuple[DepthImage, ...]
+    X_WC: tuple[np.ndarray, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class PassAlignment:
+    """The transform of one pass into the reference frame and the figures that verified it."""
+
+    hanging: int
+    T: np.ndarray  # 4x4: points of the pass -> the reference frame
+    overlap: float
+    inlier_rms_m: float
+    free_space_violation: float
+    ambiguity: float  # runner-up score / best score (0: no distinct runner-up)
+    hypotheses: int
+    failures: tuple[str, ...]  # the checks that failed (empty: verified)
+
+    @property
+    def verified(self) -> bool:
+        return not self.failures
+
+
+def _prepared(points: np.ndarray, voxel: float):
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    down = cloud.voxel_down_sample(voxel)
+    down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel, max_nn=30))
+    features = o3d.pipelines.registration.compute_fpfh_feature(
+        down, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
+    )
+    return down, features
+
+
+def _hypotheses(source, target, src_f, tgt_f, config: AlignmentConfig) -> list[np.ndarray]:
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    distance = 1.5 * config.voxel_m
+    fgr = reg.registration_fgr_based_on_feature_matching(
+        source,
+        target,
+        src_f,
+        tgt_f,
+        reg.FastGlobalRegistrationOption(maximum_correspondence_distance=distance),
+    )
+    out = [np.asarray(fgr.transformation)]
+    for run in range(config.runs):
+        # Each run its own seed and every other one without the mutual filter (more, noisier
+        # correspondences): different samples, different hypotheses.
+        o3d.utility.random.seed(1000 + run)
+        result = reg.registration_ransac_based_on_feature_matching(
+            source,
+            target,
+            src_f,
+            tgt_f,
+            run % 2 == 0,
+            distance,
+            reg.TransformationEstimationPointToPoint(False),
+            3,
+            [
+                reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+                reg.CorrespondenceCheckerBasedOnDistance(distance),
+            ],
+            reg.RANSACConvergenceCriteria(config.ransac_iterations, 0.9999),
+        )
+        out.append(np.asarray(result.transformation))
+    return out
+
+
+def _refine(source, target, T0: np.ndarray, config: AlignmentConfig) -> np.ndarray:
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    T = T0
+    for distance in (3 * config.voxel_m, config.voxel_m, config.inlier_distance_m):
+        T = reg.registration_icp(
+            source,
+            target,
+            distance,
+            T,
+            reg.TransformationEstimationPointToPlane(),
+            reg.ICPConvergenceCriteria(max_iteration=50),
+        ).transformation
+    return np.asarray(T)
+
+
+def _overlap(points: np.ndarray, tree, distance: float) -> tuple[float, float]:
+    d, _ = tree.query(points, distance_upper_bound=distance)
+    inliers = np.isfinite(d)
+    if not inliers.any():
+        return 0.0, math.inf
+    return float(inliers.mean()), float(np.sqrt(np.mean(d[inliers] ** 2)))
+
+
+def _smooth_depth(depth: DepthImage, jump_m: float) -> np.ndarray:
+    """The depth with pixels near a depth discontinuity or a hole zeroed: a ray through a
+    silhouette pixel may have measured the surface behind, which proves nothing."""
+    import cv2
+
+    d = depth.depth_m
+    kernel = np.ones((5, 5), np.uint8)
+    high = cv2.dilate(np.where(d > 0, d, 0).astype(np.float32), kernel)
+    low = cv2.erode(np.where(d > 0, d, np.inf).astype(np.float32), kernel)
+    return np.where((d > 0) & (high - low < jump_m), d, 0)
+
+
+def free_space_violation(points_W: np.ndarray, seen: SeenSpace, margin_m: float) -> float:
+    """The share of (point, reference view) tests in which the point lies more than
+    `margin_m` in front of the smooth surface that view measured along its ray: space the view
+    saw through. Points behind (occluded) or off the image are not tested."""
+    violated = tested = 0
+    for depth, X_WC in zip(seen.depths, seen.X_WC):
+        smooth = _smooth_depth(depth, 2 * margin_m)
+        p = transform_points(invert(X_WC @ depth.X_CD), points_W)
+        p = p[p[:, 2] > 1e-3]
+        uv = (p @ depth.K.T)[:, :2] / p[:, 2:3]
+        h, w = smooth.shape
+        u, v = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        measured = smooth[v[inside], u[inside]]
+        has = measured > 0
+        z = p[inside][has, 2]
+        tested += int(has.sum())
+        violated += int(np.sum(z < measured[has] - margin_m))
+    return violated / max(tested, 1)
+
+
+def _score(overlap: float, violation: float) -> float:
+    """Overlap with the reference, discounted by the share of seen-through space."""
+    return overlap * (1.0 - violation)
+
+
+def align_pass(
+    hanging: int,
+    points: np.ndarray,
+    reference: np.ndarray,
+    seen: SeenSpace,
+    config: AlignmentConfig = AlignmentConfig(),
+) -> PassAlignment:
+    """T that puts `points` (a pass's fused cloud) onto `reference`, with its verification."""
+    from scipy.spatial import cKDTree
+
+    source, src_f = _prepared(points, config.voxel_m)
+    target, tgt_f = _prepared(reference, config.voxel_m)
+    tree = cKDTree(reference)
+    sample = np.asarray(source.points)
+    candidates = []
+    for T0 in _hypotheses(source, target, src_f, tgt_f, config):
+        T = _refine(source, target, T0, config)
+        overlap, rms = _overlap(transform_points(T, points), tree, config.inlier_distance_m)
+        violation = free_space_violation(
+            transform_points(T, sample), seen, config.free_space_margin_m
+        )
+        candidates.append((_score(overlap, violation), T, overlap, rms, violation))
+    candidates.sort(key=lambda c: -c[0])
+    best_score, T, overlap, rms, violation = candidates[0]
+    runner_up = next(
+        (
+            c[0]
+            for c in candidates[1:]
+            if rotation_angle_rad(c[1][:3, :3].T @ T[:3, :3]) > config.distinct_rotation_rad
+        ),
+        0.0,
+    )
+    ambiguity = runner_up / best_score if best_score > 0 else 1.0
+    failures = []
+    if overlap < config.min_overlap:
+        failures.append(f"overlap {overlap:.2f} (need >= {config.min_overlap:g})")
+    if rms > config.max_inlier_rms_m:
+        failures.append(
+            f"inlier RMS {1e3 * rms:.2f} mm (limit {1e3 * config.max_inlier_rms_m:g} mm)"
+        )
+    if violation > config.max_free_space_violation:
+        failures.append(
+            f"{100 * violation:.1f} % of the points in space the other views saw through "
+            f"(limit {100 * config.max_free_space_violation:g} %)"
+        )
+    if ambiguity > config.max_ambiguity:
+        failures.append(
+            f"ambiguous: another orientation fits {100 * ambiguity:.0f} % as well (a symmetric "
+            "shape; scan a further hanging)"
+        )
+    return PassAlignment(
+        hanging, T, overlap, rms, violation, ambiguity, len(candidates), tuple(failures)
+    )
+
+
+def alignment_error(
+    T: np.ndarray, T_true: np.ndarray, object_points: Sequence[np.ndarray]
+) -> tuple[float, float]:
+    """(largest displacement over the object's points in m, rotation error in rad) of T."""
+    pts = np.asarray(object_points)
+    d = np.linalg.norm(transform_points(T, pts) - transform_points(T_true, pts), axis=1)
+    return float(d.max()), rotation_angle_rad(T[:3, :3].T @ T_true[:3, :3])
