@@ -87,8 +87,8 @@ def main() -> None:
     out = {
         "cases_total": len(cases),
         "aligned": sum(bool(c["aligned"]) for c in cases),
-        "alignment_error_mm_max": max((c.get("alignment_error_mm", 99.0) for c in cases)),
-        "alignment_error_deg_max": max((c.get("alignment_error_deg", 180.0) for c in cases)),
+        "alignment_error_mm_max": max(c.get("alignment_error_mm", 99.0) for c in cases),
+        "alignment_error_deg_max": max(c.get("alignment_error_deg", 180.0) for c in cases),
         "min_completeness_2mm": min((c["completeness_2mm"] for c in done), default=0.0),
         "mean_completeness_2mm": round(
             statistics.mean(c["completeness_2mm"] for c in done) if done else 0.0, 4
