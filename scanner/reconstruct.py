@@ -342,7 +342,8 @@ def reconstruct_scans(
 
     report: dict = {"captures_used": len(views.views), "captures_skipped": views.skipped}
     with timer("coverage"):
-        report["coverage_estimate"] = coverage_estimate(result.fused)
+        centres = [v.X_WC[:3, 3] for v in result.views]
+        report["coverage_estimate"] = coverage_estimate(result.fused, centres)
     truth = views.truths[0]
     to_first = _to_first_hanging(views)
     if to_first is not None:
