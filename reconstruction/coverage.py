@@ -9,7 +9,9 @@ surface and the true camera centres, here on what the software itself knows.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -35,11 +37,23 @@ def closed_surface(fused: FusedCloud, poisson_depth: int = 7) -> TriangleSurface
     return TriangleSurface(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
 
 
+@dataclass(frozen=True)
+class Coverage:
+    """The share of the closed surface the cameras saw, and the area they did not (m^2)."""
+
+    fraction: float
+    unseen_area_m2: float
+
+
 def coverage_estimate(
     fused: FusedCloud, camera_centres_W: Sequence[np.ndarray], samples: int = 50_000
-) -> float:
-    """The fraction (0-1) of the closed surface through the data that the cameras saw."""
+) -> Coverage:
+    """How much of the closed surface through the data the cameras saw."""
     if len(fused) < 100 or not len(camera_centres_W):
-        return 0.0
+        return Coverage(0.0, math.nan)
     surface = closed_surface(fused)
-    return float(visible_mask(sample_surface(surface, samples), surface, camera_centres_W).mean())
+    seen = visible_mask(sample_surface(surface, samples), surface, camera_centres_W)
+    v, t = surface.vertices, surface.triangles
+    area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
+    fraction = float(seen.mean())
+    return Coverage(fraction, float(area.sum()) * (1.0 - fraction))

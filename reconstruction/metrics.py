@@ -79,6 +79,21 @@ def distances_to_points(points: np.ndarray, target: np.ndarray) -> np.ndarray:
     return cKDTree(np.asarray(target)).query(np.asarray(points))[0]
 
 
+def _sees(scene, p, normals, centre, todo, max_incidence_rad, offset_m) -> np.ndarray:
+    """Which of the points `todo` (mask) the camera at `centre` sees (all in the scene's
+    shifted coordinates): facing it and nothing in between."""
+    to_cam = centre - p
+    dist = np.linalg.norm(to_cam, axis=1)
+    d = to_cam / dist[:, None]
+    test = todo & (np.einsum("ij,ij->i", d, normals) > math.cos(max_incidence_rad))
+    seen = np.zeros(len(p), bool)
+    if test.any():
+        rays = np.hstack([p[test] + offset_m * d[test], d[test]]).astype(np.float32)
+        hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        seen[np.nonzero(test)[0][hit >= dist[test] - offset_m]] = True
+    return seen
+
+
 def visible_mask(
     samples: SurfaceSamples,
     surface: TriangleSurface,
@@ -95,20 +110,27 @@ def visible_mask(
     p = samples.points - origin
     seen = np.zeros(len(p), bool)
     for centre in camera_centres_W:
-        to_cam = np.asarray(centre) - origin - p
-        dist = np.linalg.norm(to_cam, axis=1)
-        d = to_cam / dist[:, None]
-        facing = np.einsum("ij,ij->i", d, samples.normals) > math.cos(max_incidence_rad)
-        todo = facing & ~seen
-        if not todo.any():
-            continue
-        start = p[todo] + offset_m * d[todo]
-        rays = np.hstack([start, d[todo]]).astype(np.float32)
-        hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
-        clear = hit >= dist[todo] - offset_m
-        idx = np.nonzero(todo)[0]
-        seen[idx[clear]] = True
+        c = np.asarray(centre) - origin
+        seen |= _sees(scene, p, samples.normals, c, ~seen, max_incidence_rad, offset_m)
     return seen
+
+
+def visibility(
+    samples: SurfaceSamples,
+    surface: TriangleSurface,
+    camera_centres_W: Sequence[np.ndarray],
+    max_incidence_rad: float = math.radians(80.0),
+    offset_m: float = 1e-4,
+):
+    """For each camera centre in turn, which samples it sees (the rule of `visible_mask`);
+    the surface's ray-casting scene is built once."""
+    origin = np.asarray(surface.vertices).mean(axis=0)
+    scene = _scene(surface, origin)
+    p = samples.points - origin
+    everything = np.ones(len(p), bool)
+    for centre in camera_centres_W:
+        c = np.asarray(centre) - origin
+        yield _sees(scene, p, samples.normals, c, everything, max_incidence_rad, offset_m)
 
 
 def surface_metrics(

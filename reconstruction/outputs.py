@@ -55,7 +55,11 @@ def summary(result: ReconstructionResult) -> dict:
         "X_FC_change_rotation_rad": dr,
         "fused_points": len(result.fused),
         "meshes": {
-            name: {**_quality_record(mesh_quality(m)), "filled_holes": m.filled_holes}
+            name: {
+                **_quality_record(mesh_quality(m)),
+                "filled_holes": m.filled_holes,
+                "filled_area_m2": m.filled_area_m2,
+            }
             for name, m in result.meshes.items()
         },
         "timings_s": result.timings_s,

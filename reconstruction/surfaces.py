@@ -112,6 +112,7 @@ class SurfaceMesh:
     triangles: np.ndarray
     colors: np.ndarray | None = None
     filled_holes: int = 0  # small holes closed by `finish_mesh` (filled, not seen)
+    filled_area_m2: float = 0.0  # their area
 
     def to_open3d(self) -> o3d.geometry.TriangleMesh:
         mesh = o3d.geometry.TriangleMesh(
@@ -132,7 +133,9 @@ class DepthView:
     index: int
 
 
-def _from_open3d(name: str, mesh: o3d.geometry.TriangleMesh, filled_holes: int) -> SurfaceMesh:
+def _from_open3d(
+    name: str, mesh: o3d.geometry.TriangleMesh, filled_holes: int, filled_area_m2: float
+) -> SurfaceMesh:
     colors = (
         np.clip(np.round(np.asarray(mesh.vertex_colors) * 255), 0, 255).astype(np.uint8)
         if mesh.has_vertex_colors()
@@ -144,6 +147,7 @@ def _from_open3d(name: str, mesh: o3d.geometry.TriangleMesh, filled_holes: int) 
         np.asarray(mesh.triangles).copy(),
         colors,
         filled_holes,
+        filled_area_m2,
     )
 
 
@@ -167,8 +171,9 @@ def fuse_clouds(
 def finish_mesh(name: str, mesh: o3d.geometry.TriangleMesh, config: SurfaceConfig) -> SurfaceMesh:
     """Clean the mesh and close its small holes; the count of closed holes goes with it."""
     clean_mesh(mesh, config.min_component_fraction)
+    area = mesh.get_surface_area()
     filled = fill_small_holes(mesh, config.fill_holes_max_radius_m)
-    return _from_open3d(name, mesh, filled)
+    return _from_open3d(name, mesh, filled, max(mesh.get_surface_area() - area, 0.0))
 
 
 @dataclass(frozen=True, eq=False)

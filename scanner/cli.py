@@ -59,6 +59,13 @@ def _add_scan_parser(sub) -> None:
     )
     scan.add_argument("--seed", type=int, help="seed of the simulated error model")
     scan.add_argument(
+        "--max-extra-views",
+        type=int,
+        metavar="K",
+        help="after each hanging's planned views, up to K next-best views where the model so "
+        "far leaves the most surface unseen (default 0)",
+    )
+    scan.add_argument(
         "--hangings",
         type=int,
         help="passes over the object, re-hung between them (the simulator turns it; on "
@@ -179,6 +186,7 @@ def _scan(args: argparse.Namespace) -> int:
         calibration_file=str(args.calibration) if args.calibration else None,
         driver=args.driver,
         hangings=args.hangings,
+        max_extra_views=args.max_extra_views,
     )
     if args.resume is not None:
         if args.out is not None or args.force:

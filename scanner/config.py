@@ -133,6 +133,7 @@ def with_overrides(
     calibration_file: str | None = None,
     driver: str | None = None,
     hangings: int | None = None,
+    max_extra_views: int | None = None,
 ) -> ScanConfig:
     """Command-line flags win over the file; each override is validated like the file, and
     an error names the flag."""
@@ -156,6 +157,11 @@ def with_overrides(
         config = replace(config, calibration_file=calibration_file)
     if driver is not None:
         config = replace(config, driver=driver)
+    if max_extra_views is not None:
+        views_config = for_flag(
+            "--max-extra-views", lambda: replace(config.views, max_extra_views=max_extra_views)
+        )
+        config = replace(config, views=views_config)
     if hangings is not None:
         config = for_flag("--hangings", lambda: replace(config, hangings=hangings))
     return config

@@ -17,6 +17,7 @@ import json
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -29,11 +30,17 @@ from reconstruction.errors import ScannerError
 from reconstruction.metrics import TriangleSurface, evaluate_surface, handeye_error
 from reconstruction.outputs import save_outputs, summary
 from reconstruction.pass_alignment import alignment_error
-from reconstruction.pipeline import ReconstructionConfig, ReconstructionResult, reconstruct_views
+from reconstruction.pipeline import (
+    ReconstructionConfig,
+    ReconstructionResult,
+    filter_views,
+    reconstruct_views,
+)
 from reconstruction.stage_timer import StageTimer
 from reconstruction.stereo.cloud import depth_image, view_cloud
 from reconstruction.stereo.params import StereoParams
 from reconstruction.stereo.rectification import Rectification, compute_rectification
+from reconstruction.surfaces import FusedCloud, fuse_clouds
 from reconstruction.transforms import invert, transform_points
 from reconstruction.views import ViewCloud
 from robots.workcell import keep_out_radius_m
@@ -64,13 +71,21 @@ class CaptureViews:
 
 
 def capture_views(
-    scan: SavedScan, rect: Rectification, X_FC: np.ndarray, params: StereoParams
+    scan: SavedScan,
+    rect: Rectification,
+    X_FC: np.ndarray,
+    params: StereoParams,
+    indices: Sequence[int] | None = None,
 ) -> CaptureViews:
-    """Stereo clouds of every readable capture; damaged captures are reported and skipped."""
+    """Stereo clouds of every readable capture (or of those among `indices`); damaged
+    captures are reported and skipped."""
     centre = np.array(scan.config.scan_center_m, float)
     radius = keep_out_radius_m(scan.config.cell)
     out = CaptureViews([], [], {})
+    wanted = None if indices is None else set(indices)
     for index in scan.store.captured_indices():
+        if wanted is not None and index not in wanted:
+            continue
         try:
             capture = scan.store.read_capture(index)
         except ScannerError as e:
@@ -165,7 +180,7 @@ def _alignment_report(result, to_first, surface, hangings: int) -> dict:
     return out
 
 
-def _geometry_filter(
+def geometry_filter(
     config: ScanConfig, X_FC: np.ndarray, stereo: StereoCamera, joints: dict, margin_m: float
 ):
     from robots.point_filter import make_geometry_filter
@@ -290,7 +305,7 @@ def gather_views(
         out.scan_of.update({v.index + offset: k for v in captured.views})
         out.truths.append(_truth(scan.root))
         filters.append(
-            _geometry_filter(scan.config, X, camera, captured.joints, processing.remove_margin_m)
+            geometry_filter(scan.config, X, camera, captured.joints, processing.remove_margin_m)
         )
     remove = lambda points_W, index: filters[index // INDEX_STRIDE](  # noqa: E731
         points_W, index % INDEX_STRIDE
@@ -343,7 +358,9 @@ def reconstruct_scans(
     report: dict = {"captures_used": len(views.views), "captures_skipped": views.skipped}
     with timer("coverage"):
         centres = [v.X_WC[:3, 3] for v in result.views]
-        report["coverage_estimate"] = coverage_estimate(result.fused, centres)
+        coverage = coverage_estimate(result.fused, centres)
+        report["coverage_estimate"] = coverage.fraction
+        report["unseen_area_m2"] = coverage.unseen_area_m2
     truth = views.truths[0]
     to_first = _to_first_hanging(views)
     if to_first is not None:
@@ -361,6 +378,21 @@ def reconstruct_scans(
         merged = {**earlier, **report}
         _write_report(staging, merged)
     return ReconstructRun(result, merged, out)
+
+
+def model_so_far(
+    scan: SavedScan, indices: Sequence[int], X_FC: np.ndarray, stereo: StereoCamera
+) -> tuple[FusedCloud, list[np.ndarray]]:
+    """The fused cloud of some captures at their kinematic poses (no registration: a quick
+    model to plan more views on), and their camera centres."""
+    processing = scan.config.processing
+    config = _with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
+    captured = capture_views(scan, compute_rectification(stereo), X_FC, processing.stereo, indices)
+    remove = geometry_filter(scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m)
+    views, clouds, _ = filter_views(captured.views, X_FC, config, remove)
+    X_WC = [v.X_WF @ X_FC for v in views]
+    fused = fuse_clouds(clouds, X_WC, config.surfaces.fused_voxel_size_m)
+    return fused, [X[:3, 3] for X in X_WC]
 
 
 def _earlier_report(out: Path) -> dict:

@@ -20,7 +20,7 @@ from reconstruction.metrics import (  # noqa: E402
     distances_to_mesh,
 )
 from reconstruction.pipeline import ReconstructionResult  # noqa: E402
-from reconstruction.transforms import pose_difference  # noqa: E402
+from reconstruction.transforms import pose_difference, transform_points  # noqa: E402
 
 
 def _residual_plot(result: ReconstructionResult, path: Path) -> None:
@@ -77,6 +77,35 @@ def _error_map(vertices: np.ndarray, error_mm: np.ndarray, path: Path, title: st
     plt.close(fig)
 
 
+PASS_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+
+
+def _hangings_map(result: ReconstructionResult, path: Path) -> None:
+    """The merged cloud in two orthographic views, each hanging's points in its own colour."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 5))
+    per_pass = ERROR_MAP_MAX_POINTS // max(1, len(result.alignments) + 1)
+    rng = np.random.default_rng(0)
+    for h in range(len(result.alignments) + 1):
+        points = [
+            transform_points(v.X_WC, c.points_C)
+            for v, c in zip(result.views, result.clouds)
+            if v.hanging == h
+        ]
+        p = np.vstack(points)
+        p = p[rng.choice(len(p), min(per_pass, len(p)), replace=False)]
+        for ax, (a, b) in zip(axes, ((0, 2), (0, 1))):
+            colour = PASS_COLOURS[h % len(PASS_COLOURS)]
+            ax.scatter(p[:, a], p[:, b], s=0.2, color=colour, label=f"hanging {h + 1}")
+    for ax, name in zip(axes, ("x-z (side)", "x-y (from below)")):
+        ax.set_aspect("equal")
+        ax.set_title(name)
+        ax.set_xlabel("m")
+    axes[0].legend(markerscale=20)
+    fig.suptitle("Merged model, coloured by hanging (first hanging's frame)")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def write_plots(
     result: ReconstructionResult,
     out: Path,
@@ -85,6 +114,9 @@ def write_plots(
 ) -> dict:
     paths = {"residuals": "residuals.png"}
     _residual_plot(result, out / paths["residuals"])
+    if result.alignments:
+        paths["hangings"] = "hangings.png"
+        _hangings_map(result, out / paths["hangings"])
     mesh = result.meshes.get(primary)
     if truth is not None and mesh is not None and len(mesh.vertices):
         error_mm = 1e3 * distances_to_mesh(mesh.vertices, truth)
@@ -101,6 +133,31 @@ def write_plots(
 
 def _fmt(value, digits: int = 3) -> str:
     return f"{value:.{digits}f}" if isinstance(value, float) else str(value)
+
+
+def _hangings_lines(report: dict) -> list[str]:
+    passes = report.get("hangings")
+    if not passes or len(passes) < 2:
+        return []
+    lines = [
+        "",
+        "## Hangings (each further one aligned onto those before it)",
+        "",
+        "| hanging | views | overlap | inlier RMS mm | seen-through | verified | error mm, deg |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for p in passes:
+        error = (
+            f"{_fmt(p['alignment_error_mm'])} / {_fmt(p['alignment_error_deg'])}"
+            if "alignment_error_mm" in p
+            else "-"
+        )
+        lines.append(
+            f"| {p['hanging']} | {p['views']} | {_fmt(p.get('overlap', '-'))} | "
+            f"{_fmt(p.get('inlier_rms_mm', '-'))} | {_fmt(p.get('free_space_violation', '-'))} | "
+            f"{p.get('verified', 'reference')} | {error} |"
+        )
+    return lines
 
 
 def write_summary(report: dict, out: Path) -> Path:
@@ -129,6 +186,14 @@ def write_summary(report: dict, out: Path) -> Path:
                 "restricted to it, the others count the unseen part (e.g. the top of a hung "
                 "object) as missing.",
             ]
+    if "coverage_estimate" in report:
+        lines += [
+            "",
+            f"Coverage estimate (no truth): {_fmt(report['coverage_estimate'])} of the closed "
+            f"surface was in some camera's view; about {_fmt(1e4 * report['unseen_area_m2'], 1)}"
+            " cm^2 were not (a further hanging would show them).",
+        ]
+    lines += _hangings_lines(report)
     if "handeye_error_mm" in report:
         lines += [
             "",

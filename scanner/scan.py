@@ -25,10 +25,11 @@ from robots.truth import save_truth
 from scanner.captures import CaptureStore, atomic_write_text, require_same_settings
 from scanner.config import ScanConfig, scan_config_to_dict
 from scanner.decision import DecisionMaker, FixedViewList, RunSummary
-from scanner.manifest import SavedScan, new_manifest, open_scan
-from scanner.reconstruct import holds_reconstruction, run_reconstruct
+from scanner.manifest import SavedScan, new_manifest, open_scan, views_to_manifest
+from scanner.next_best_view import CoverageModel
+from scanner.reconstruct import holds_reconstruction, model_so_far, run_reconstruct
 from scanner.report import write_summary
-from scanner.viewpoints import PlannedView, generate_viewpoints
+from scanner.viewpoints import PlannedView, generate_viewpoints, planned_view
 from scanner.world import ScanWorld, WatchedRobot, live_cloud, setup_world
 
 log = logging.getLogger("scanner.scan")
@@ -145,6 +146,7 @@ def _start_new(
         "reachable_fraction": plan.reachable_fraction,
         "dropped_views": [{"direction": d.direction, "reason": d.reason} for d in plan.dropped],
         "hangings": [[p * count + v.index for v in plan.views] for p in range(config.hangings)],
+        "reachable_directions": plan.reachable_directions.tolist(),
         "hanging": 0,
     }
     manifest = new_manifest(config, world.stereo, world.X_FC, views, plan_info)
@@ -303,6 +305,7 @@ class _PassRunner:
             self.machine.request_abort()
 
     def passes(self, hangings: tuple[tuple[int, ...], ...], first: int) -> RunSummary:
+        self.hangings = [list(h) for h in hangings]
         summaries = []
         for hanging in range(first, len(hangings)):
             if hanging > first:
@@ -310,10 +313,69 @@ class _PassRunner:
                     self.world = self.world.rehang(hanging, len(hangings), self.viewer)
                 self.store.update_manifest(hanging=hanging)
                 log.info("re-hung the object for hanging %d of %d", hanging + 1, len(hangings))
-            summaries.append(self._one_pass(set(hangings[hanging])))
-            if summaries[-1].state.value == "aborted" or self.abort_requested:
+            summaries.append(self._one_pass(set(self.hangings[hanging])))
+            if self._aborted(summaries):
+                break
+            summaries += self._extra_views(hanging)
+            if self._aborted(summaries):
                 break
         return _combined(summaries)
+
+    def _aborted(self, summaries: list[RunSummary]) -> bool:
+        return summaries[-1].state.value == "aborted" or self.abort_requested
+
+    def _extra_views(self, hanging: int) -> list[RunSummary]:
+        """Next-best views for this hanging (up to views.max_extra_views), each captured at
+        once; recorded in the manifest like the planned views, so a resume keeps them."""
+        settings = self.config.views
+        manifest = self.store.read_manifest()
+        done = manifest.get("extra_views_done", [])
+        if settings.max_extra_views == 0 or hanging in done:
+            return []
+        captured = set(self.store.captured_indices())
+        indices = [i for i in self.hangings[hanging] if i in captured]
+        with self.timer("next_best_view"):
+            fused, centres = model_so_far(
+                open_scan(self.store.root), indices, self.world.X_FC, self.world.stereo
+            )
+            model = CoverageModel(fused, centres)
+        centre = np.array(self.config.scan_center_m)
+        directions = np.array(manifest.get("reachable_directions", []), float).reshape(-1, 3)
+        taken = [v.direction for v in self.views if v.index in set(self.hangings[hanging])]
+        q_home = self.world.robot.joint_positions()
+        summaries = []
+        for _ in range(settings.max_extra_views):
+            with self.timer("next_best_view"):
+                choice = model.best(centre, settings.radius_m, directions, taken)
+            if choice is None or choice.gain < settings.min_gain:
+                log.info("next-best view: best gain below %.3f, stopping", settings.min_gain)
+                break
+            taken.append(choice.direction)
+            view = planned_view(
+                max(v.index for v in self.views) + 1,
+                centre,
+                choice.direction,
+                settings,
+                lambda vp: self.world.planner.reachable(vp, q_home),
+                lambda q: self.world.planner.estimate_duration_s(q_home, q),
+            )
+            if view is None:
+                continue
+            self.views.append(view)
+            self.hangings[hanging].append(view.index)
+            self.store.update_manifest(
+                viewpoints=views_to_manifest(self.views),
+                hangings=self.hangings,
+                pose_count=len(self.views),
+            )
+            log.info("next-best view %d: gain %.3f of the surface", view.index, choice.gain)
+            summaries.append(self._one_pass({view.index}))
+            if self._aborted(summaries):
+                return summaries
+            if view.index in set(self.store.captured_indices()):
+                model.add(centre + settings.radius_m * choice.direction)
+        self.store.update_manifest(extra_views_done=[*done, hanging])
+        return summaries
 
     def _one_pass(self, indices: set[int]) -> RunSummary:
         done = set(self.store.captured_indices())

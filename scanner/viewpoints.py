@@ -25,6 +25,7 @@ from reconstruction.checks import (
     require_at_most,
     require_choice,
     require_count,
+    require_fraction,
     require_positive,
 )
 from reconstruction.errors import ScannerError
@@ -51,6 +52,11 @@ class ViewpointConfig:
     options_per_view: int = 6
     replace_within_rad: float = math.radians(20.0)
     lloyd_iterations: int = 10
+    # Next-best views: after a hanging's planned views, up to this many more, each where the
+    # current model's unseen surface is best in view; stop when the best would show less than
+    # min_gain of the closed surface.
+    max_extra_views: int = 0
+    min_gain: float = 0.01
 
     def __post_init__(self) -> None:
         if self.count < 1:
@@ -64,6 +70,8 @@ class ViewpointConfig:
             raise ScannerError("views.elevation_*_rad: need -pi/2 <= min < max <= pi/2")
         require_count("views", self, ("roll_candidates", "options_per_view"))
         require_count("views", self, ("lloyd_iterations",), minimum=0)
+        require_count("views", self, ("max_extra_views",), minimum=0, maximum=MAX_VIEWS)
+        require_fraction("views", self, ("min_gain",))
         require_count("views", self, ("candidates",), minimum=self.count)
 
 
@@ -97,6 +105,8 @@ class ViewPlan:
     views: tuple[PlannedView, ...]
     dropped: tuple[DroppedView, ...]
     reachable_fraction: float
+    # Every reachable candidate direction (unit, from the centre): where extra views may go.
+    reachable_directions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 def _band(config: ViewpointConfig, n: int) -> np.ndarray:
@@ -231,4 +241,22 @@ def generate_viewpoints(
                 len(views), d, _viewpoint(center, d, config.radius_m, best.roll_rad), tuple(options)
             )
         )
-    return ViewPlan(tuple(views), tuple(dropped), fraction)
+    return ViewPlan(tuple(views), tuple(dropped), fraction, reachable_dirs)
+
+
+def planned_view(
+    index: int,
+    center_m: Sequence[float],
+    direction: np.ndarray,
+    config: ViewpointConfig,
+    reachable: ReachableFn,
+    option_cost: Callable[[np.ndarray], float] = lambda q: 0.0,
+) -> PlannedView | None:
+    """One more view in `direction` (e.g. a next-best view), or None when no configuration
+    reaches it."""
+    center = np.asarray(center_m, float)
+    options = _options(center, direction, config, reachable, option_cost)
+    if not options:
+        return None
+    viewpoint = _viewpoint(center, direction, config.radius_m, options[0].roll_rad)
+    return PlannedView(index, np.asarray(direction, float), viewpoint, tuple(options))

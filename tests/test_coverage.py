@@ -22,7 +22,9 @@ def _cameras(directions: np.ndarray, distance: float) -> list[np.ndarray]:
 def test_an_object_seen_from_everywhere_is_covered():
     cloud = _sphere_cloud(40_000, 0.1, lambda d: np.ones(len(d), bool))
     rng = np.random.default_rng(1)
-    assert coverage_estimate(cloud, _cameras(rng.normal(size=(40, 3)), 0.5)) > 0.97
+    coverage = coverage_estimate(cloud, _cameras(rng.normal(size=(40, 3)), 0.5))
+    assert coverage.fraction > 0.97
+    assert coverage.unseen_area_m2 < 0.03 * 4 * np.pi * 0.1**2
 
 
 def test_an_object_seen_from_below_is_covered_as_far_as_the_cameras_see():
@@ -45,4 +47,8 @@ def test_an_object_seen_from_below_is_covered_as_far_as_the_cameras_see():
     cloud = FusedCloud(
         samples.points[seen], np.zeros((seen.sum(), 3), np.uint8), samples.normals[seen]
     )
-    assert coverage_estimate(cloud, centres) == pytest.approx(seen.mean(), abs=0.05)
+    coverage = coverage_estimate(cloud, centres)
+    assert coverage.fraction == pytest.approx(seen.mean(), abs=0.05)
+    # The unseen cap's area: the sphere's area the cameras do not see.
+    unseen = (1 - seen.mean()) * 4 * np.pi * 0.1**2
+    assert coverage.unseen_area_m2 == pytest.approx(unseen, rel=0.2)
