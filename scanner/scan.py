@@ -27,8 +27,9 @@ from scanner.config import ScanConfig, scan_config_to_dict
 from scanner.decision import DecisionMaker, FixedViewList, RunSummary
 from scanner.manifest import SavedScan, new_manifest, open_scan, views_to_manifest
 from scanner.next_best_view import CoverageModel
-from scanner.reconstruct import holds_reconstruction, model_so_far, run_reconstruct
+from scanner.reconstruct import holds_reconstruction, run_reconstruct
 from scanner.report import write_summary
+from scanner.scan_views import model_so_far
 from scanner.viewpoints import PlannedView, generate_viewpoints, planned_view
 from scanner.world import ScanWorld, WatchedRobot, live_cloud, setup_world
 

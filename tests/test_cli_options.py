@@ -162,10 +162,10 @@ def no_work(monkeypatch):
     import scanner.calibrate.eye_to_hand
     import scanner.calibrate.offline
     import scanner.preview
-    import scanner.reconstruct
+    import scanner.scan_views
 
     monkeypatch.setattr(planners.planner.Planner, "__init__", _tripwire)
-    monkeypatch.setattr(scanner.reconstruct, "capture_views", _tripwire)
+    monkeypatch.setattr(scanner.scan_views, "capture_views", _tripwire)
     monkeypatch.setattr(scanner.calibrate.offline, "solve", _tripwire)
     monkeypatch.setattr(scanner.calibrate.eye_to_hand, "grid_points", _tripwire)
     monkeypatch.setattr(scanner.preview, "first_reachable_view", _tripwire)

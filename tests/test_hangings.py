@@ -21,6 +21,7 @@ from reconstruction.views import DepthImage
 from robots.hangings import hanging_rotation, hung_pose
 from robots.objects import resolve_object
 from robots.workcell import placed_object
+from tests.conftest import shared_data
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -123,34 +124,43 @@ def test_a_different_object_is_refused():
     assert not a.verified
 
 
+# 12 views per hanging at 640x480, Poisson only (depth 8): what these tests check is the
+# alignment and the coverage, not the finest surface.
 SMALL = {
     "camera": {"width_px": 640, "height_px": 480, "focal_px": 660.0},
-    "views": {"count": 16},
+    "views": {"count": 12},
+    "processing": {"reconstruction": {"surfaces": {"methods": ["poisson"], "poisson_depth": 8}}},
 }
 
 
 @pytest.fixture(scope="module")
 def two_hangings(tmp_path_factory):
-    """A 2-hanging bracket scan at 640x480 (16 views per hanging), reconstructed."""
+    """A 2-hanging scan of the Stanford bunny at 640x480 (12 views per hanging),
+    reconstructed. (A planar part such as the bracket is refused as ambiguous at this
+    resolution: its features find no hypothesis that verifies.)"""
     from scanner.config import load_scan_config
     from scanner.scan import run_scan
 
     path = tmp_path_factory.mktemp("cfg") / "small.yaml"
-    path.write_text(yaml.safe_dump({**SMALL, "object": "bracket", "hangings": 2}))
+    bunny = str(shared_data("meshes/stanford-bunny.obj"))
+    path.write_text(yaml.safe_dump({**SMALL, "object": bunny, "hangings": 2}))
     return run_scan(load_scan_config(path), tmp_path_factory.mktemp("scan") / "b2")
 
 
 @pytest.mark.slow
 def test_a_two_hanging_scan_is_aligned_and_sees_the_whole_object(two_hangings):
     r = two_hangings.report
-    assert r["views_captured"] == 32 and r["status"] == "complete"
+    assert r["views_captured"] == 24 and r["status"] == "complete"
     passes = r["hangings"]
-    assert [p["views"] for p in passes] == [16, 16]
+    assert [p["views"] for p in passes] == [12, 12]
     assert passes[1]["verified"] is True
     assert r["alignment_error_mm"] < 1.0 and r["alignment_error_deg"] < 0.3
     # Both hangings together see (nearly) all of the object; one alone sees about 70 %.
     assert r["observed_fraction"] > 0.95 and r["completeness_2mm"] > 0.9
     assert abs(r["coverage_estimate"] - r["observed_fraction"]) < 0.05
+    for p in passes:  # each hanging alone: its own estimate against its own truth
+        assert abs(p["coverage_estimate"] - p["observed_fraction"]) < 0.05
+        assert p["observed_fraction"] < r["observed_fraction"]
     truth = yaml.safe_load((two_hangings.scan_dir / "truth.yaml").read_text())
     assert len(truth["X_WO_hangings"]) == 2
     manifest = yaml.safe_load((two_hangings.scan_dir / "scan.yaml").read_text())
@@ -171,7 +181,10 @@ def test_merging_scans_of_different_objects_is_refused(two_hangings, tmp_path):
     from scanner.config import load_scan_config
     from scanner.scan import run_scan
 
-    config = load_scan_config(_small_file(tmp_path, object="vase", reconstruct=False))
+    small = {**SMALL, "views": {"count": 6}}
+    path = tmp_path / "vase.yaml"
+    path.write_text(yaml.safe_dump({**small, "object": "vase", "reconstruct": False}))
+    config = load_scan_config(path)
     vase = run_scan(config, tmp_path / "vase").scan_dir
     out = tmp_path / "merged"
     cli = [sys.executable, "-m", "scanner.cli", "merge", str(two_hangings.scan_dir), str(vase)]
@@ -215,20 +228,21 @@ def test_a_scan_killed_in_its_second_hanging_resumes_there(tmp_path):
     from scanner.captures import CaptureStore
     from scanner.reconstruct import run_reconstruct
 
-    path = _small_file(tmp_path, object="bracket", hangings=2, reconstruct=False)
+    bunny = str(shared_data("meshes/stanford-bunny.obj"))
+    path = _small_file(tmp_path, object=bunny, hangings=2, reconstruct=False)
     out = tmp_path / "scan"
     cli = [sys.executable, "-m", "scanner.cli", "scan", "--config", str(path), "--out", str(out)]
     proc = subprocess.Popen(cli, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline and proc.poll() is None:
         captures = out / "captures"
-        if captures.is_dir() and len([p for p in captures.iterdir() if p.name.isdigit()]) >= 20:
+        if captures.is_dir() and len([p for p in captures.iterdir() if p.name.isdigit()]) >= 15:
             break
         time.sleep(0.02)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     store = CaptureStore.open(out)
-    assert 16 < len(store.captured_indices()) < 32, "killed in the second hanging"
+    assert 12 < len(store.captured_indices()) < 24, "killed in the second hanging"
     assert store.read_manifest()["hanging"] == 1
     r = subprocess.run(
         [sys.executable, "-m", "scanner.cli", "scan", "--resume", str(out)],
@@ -237,7 +251,7 @@ def test_a_scan_killed_in_its_second_hanging_resumes_there(tmp_path):
         timeout=600,
     )
     assert r.returncode == 0, r.stderr
-    assert store.captured_indices() == list(range(32))
+    assert store.captured_indices() == list(range(24))
     # The views captured after the resume saw the object in its second hanging: the second
     # pass aligns with the first as well as an uninterrupted scan's does.
     report = run_reconstruct(out).report

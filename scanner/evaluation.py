@@ -1,0 +1,140 @@
+"""The reconstruction against the simulator's truth (when truth.yaml is there): surface metrics,
+observed fraction, hand-eye error, and per hanging its coverage and alignment error, all in the
+first (scan's first) hanging's frame."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from reconstruction.coverage import coverage_estimate
+from reconstruction.errors import ScannerError
+from reconstruction.metrics import (
+    TriangleSurface,
+    evaluate_surface,
+    handeye_error,
+    sample_surface,
+    visible_mask,
+)
+from reconstruction.pass_alignment import alignment_error
+from reconstruction.pipeline import ReconstructionResult
+from reconstruction.surfaces import fuse_clouds
+from reconstruction.transforms import invert, transform_points
+from scanner.config import ProcessingConfig
+from scanner.scan_views import Gathered
+
+
+def _true_camera_centres(views: Gathered, to_first: list[np.ndarray]) -> dict[int, np.ndarray]:
+    """True camera centre of every view (by capture index), in the first hanging's frame
+    (`to_first`: per hanging, the true transform of its placement onto the first's)."""
+    from robots.kinematics import Kinematics
+
+    hanging_of = {i: h for h, indices in enumerate(views.hangings) for i in indices}
+    kin = Kinematics()
+    centres = {}
+    for i, q in views.joints.items():
+        truth = views.truths[views.scan_of[i]][0]
+        X_WC = kin.X_WF(q + truth.joint_offsets_rad) @ truth.X_FC
+        centres[i] = transform_points(to_first[hanging_of[i]], X_WC[:3, 3][None])[0]
+    return centres
+
+
+def _object_poses(truth) -> list[np.ndarray]:
+    """The object's true pose in each hanging of one scan."""
+    raw = truth[2]
+    return [np.array(X, float) for X in raw.get("X_WO_hangings", [truth[0].X_WO])]
+
+
+def to_first_hanging(views: Gathered) -> list[np.ndarray] | None:
+    """Per hanging (over all scans), the true transform of its placement onto the first
+    scan's first hanging; None without truth for every scan."""
+    if any(t is None for t in views.truths):
+        return None
+    poses = [X for t in views.truths for X in _object_poses(t)]
+    if len(poses) != len(views.hangings):
+        return None
+    return [poses[0] @ invert(X) for X in poses]
+
+
+def _pass_coverage(result, hanging: int, voxel_m: float) -> float:
+    """The coverage estimate of one hanging's views alone."""
+    pairs = [(v, c) for v, c in zip(result.views, result.clouds) if v.hanging == hanging]
+    fused = fuse_clouds([c for _, c in pairs], [v.X_WC for v, _ in pairs], voxel_m)
+    return coverage_estimate(fused, [v.X_WC[:3, 3] for v, _ in pairs]).fraction
+
+
+def _pass_observed(surface, centres: list[np.ndarray]) -> float:
+    """The share of the true surface one hanging's (true) cameras saw."""
+    return float(visible_mask(sample_surface(surface, 50_000), surface, centres).mean())
+
+
+def hangings_report(result, views: Gathered, to_first, voxel_m: float) -> dict:
+    """Per hanging its views, coverage and alignment figures, and (with truth) its observed
+    fraction and alignment errors."""
+    surface = views.truths[0][1] if to_first is not None else None
+    centres = _true_camera_centres(views, to_first) if to_first is not None else {}
+    passes = []
+    for h in range(len(views.hangings)):
+        indices = [v.index for v in result.views if v.hanging == h]
+        record: dict = {
+            "hanging": h + 1,
+            "views": len(indices),
+            "coverage_estimate": _pass_coverage(result, h, voxel_m),
+        }
+        if surface is not None:
+            record["observed_fraction"] = _pass_observed(surface, [centres[i] for i in indices])
+        a = next((a for a in result.alignments if a.hanging == h), None)
+        if a is not None:
+            record.update(
+                overlap=a.overlap,
+                inlier_rms_mm=1e3 * a.inlier_rms_m,
+                free_space_violation=a.free_space_violation,
+                ambiguity=a.ambiguity,
+                verified=a.verified,
+            )
+            if surface is not None:
+                points_h = transform_points(invert(to_first[h]), surface.vertices)
+                dt, dr = alignment_error(a.T, to_first[h], points_h)
+                record.update(alignment_error_mm=1e3 * dt, alignment_error_deg=math.degrees(dr))
+        passes.append(record)
+    out: dict = {"hangings": passes}
+    errors = [p for p in passes if "alignment_error_mm" in p]
+    if errors:
+        out["alignment_error_mm"] = max(p["alignment_error_mm"] for p in errors)
+        out["alignment_error_deg"] = max(p["alignment_error_deg"] for p in errors)
+    return out
+
+
+def evaluate(result: ReconstructionResult, truth, surface, centres, samples: int) -> dict:
+    """Metrics of every surface against the truth, and the hand-eye error before/after."""
+    out: dict = {"surfaces": {}}
+    results = {name: TriangleSurface(m.vertices, m.triangles) for name, m in result.meshes.items()}
+    for name, mesh in results.items():
+        out["surfaces"][name] = evaluate_surface(
+            None, surface, result_mesh=mesh, camera_centres_W=centres, n_samples=samples
+        )
+    out["surfaces"]["fused_cloud"] = evaluate_surface(
+        result.fused.points_W, surface, camera_centres_W=centres, n_samples=samples
+    )
+    before = handeye_error(result.X_FC_nominal, truth.X_FC)
+    after = handeye_error(result.X_FC, truth.X_FC)
+    out.update(after)
+    out["handeye_error_before_mm"] = before["handeye_error_mm"]
+    out["handeye_error_before_deg"] = before["handeye_error_deg"]
+    return out
+
+
+def truth_metrics(result, views: Gathered, processing: ProcessingConfig, to_first) -> dict:
+    """The report's accuracy keys (against the first scan's truth, in its first hanging's
+    frame): the primary surface's metrics first, then all of them."""
+    centres = list(_true_camera_centres(views, to_first).values())
+    truth = views.truths[0]
+    metrics = evaluate(result, truth[0], truth[1], centres, processing.metric_samples)
+    primary = metrics["surfaces"].get(processing.primary_surface)
+    if primary is None:
+        raise ScannerError(
+            f"processing.primary_surface: '{processing.primary_surface}' was not built "
+            f"(built: {', '.join(metrics['surfaces'])})"
+        )
+    return {**primary, "primary_surface": processing.primary_surface, **metrics}
