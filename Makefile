@@ -7,9 +7,10 @@ setup:
 scan: setup
 	.venv/bin/scanner scan
 
-# pytest exits 5 when no test was collected; that is not a failure of the install.
+# pytest exits 5 when no test was collected; that is not a failure of the install. One worker
+# per core, a test file per worker (its module fixtures, e.g. a scan, are built once).
 test: setup
-	.venv/bin/python -m pytest; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
+	.venv/bin/python -m pytest -n auto --dist loadfile; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
 
 lint: setup
 	.venv/bin/ruff check .

@@ -49,9 +49,10 @@ from reconstruction.surfaces import (
     DepthView,
     FusedCloud,
     SurfaceConfig,
+    SurfaceInput,
     SurfaceMesh,
-    build_surface,
     fuse_clouds,
+    surface_from,
 )
 from reconstruction.transforms import check_pose
 from reconstruction.views import ViewCloud
@@ -277,11 +278,11 @@ def build_surfaces(
         notes.append("TSDF skipped: the views carry no depth maps")
         methods.remove("tsdf")
 
+    inputs = SurfaceInput(fused, depth_views, config.filter.roi, remove_points)
+
     def build(method: str) -> SurfaceMesh:
         with timer(method):
-            return build_surface(
-                method, fused, config.surfaces, depth_views, config.filter.roi, remove_points
-            )
+            return surface_from(method, inputs, config.surfaces)
 
     # Open3D releases the GIL: the (single-threaded, for determinism) Poisson solve runs on one
     # core while TSDF fusion runs on the other.
@@ -376,6 +377,10 @@ def reconstruct_views(
             X_WC = list(graph.X_WC)
 
     alignments: tuple[PassAlignment, ...] = ()
+    if len(groups) > 1 and "poisson" in config.surfaces.methods:
+        # Hangings together surround the object: its closed model comes from the same solve.
+        methods = tuple(dict.fromkeys((*config.surfaces.methods, "poisson_closed")))
+        config = replace(config, surfaces=replace(config.surfaces, methods=methods))
     if len(groups) > 1:
         with timer("align"):
             X_WC, alignments = align_hangings(

@@ -9,8 +9,9 @@ point (what density alone misses when the extrapolated cap is large).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -186,28 +187,61 @@ class SurfaceInput:
     depth_views: Sequence[DepthView] = ()
     roi: RegionOfInterest = RegionOfInterest(shape="none")
     remove_points: RemovePoints | None = None
+    # One Poisson solve serves both "poisson" and "poisson_closed" (they may run in parallel).
+    shared: dict = field(default_factory=dict, compare=False)
+    lock: threading.Lock = field(default_factory=threading.Lock, compare=False)
+
+
+def _poisson_solution(inputs: SurfaceInput, config: SurfaceConfig):
+    """The untrimmed Poisson surface and its densities, solved once per input."""
+    with inputs.lock:
+        if "poisson" not in inputs.shared:
+            fused = inputs.fused
+            if len(fused) < 100:
+                raise ScannerError(f"Poisson: only {len(fused)} fused points, nothing to mesh")
+            pc = o3d_cloud(fused.points_W, fused.normals_W, fused.colors)
+            with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+                mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+                    # One thread: the multi-threaded solver sums in a varying order, so two
+                    # runs on the same captures would give (slightly) different meshes.
+                    pc,
+                    depth=config.poisson_depth,
+                    n_threads=1,
+                )
+            inputs.shared["poisson"] = (mesh, np.asarray(density))
+        mesh, density = inputs.shared["poisson"]
+    return o3d.geometry.TriangleMesh(mesh), density
+
+
+def _unsupported(inputs: SurfaceInput, mesh, config: SurfaceConfig) -> np.ndarray:
+    """Vertices farther than poisson_max_distance_m from every fused point."""
+    far, _ = cKDTree(inputs.fused.points_W).query(
+        np.asarray(mesh.vertices), distance_upper_bound=config.poisson_max_distance_m
+    )
+    return ~np.isfinite(far)
 
 
 def poisson_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
-    fused = inputs.fused
-    if len(fused) < 100:
-        raise ScannerError(f"Poisson: only {len(fused)} fused points, nothing to mesh")
-    pc = o3d_cloud(fused.points_W, fused.normals_W, fused.colors)
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-            # One thread: the multi-threaded solver sums in a varying order, so two runs on the
-            # same captures would give (slightly) different meshes; this costs ~15 %.
-            pc,
-            depth=config.poisson_depth,
-            n_threads=1,
-        )
-    density = np.asarray(density)
-    far, _ = cKDTree(fused.points_W).query(
-        np.asarray(mesh.vertices), distance_upper_bound=config.poisson_max_distance_m
-    )
-    drop = (density < np.quantile(density, config.poisson_density_quantile)) | ~np.isfinite(far)
-    mesh.remove_vertices_by_mask(drop)
+    """Poisson trimmed to the data: what was seen, open where nothing was."""
+    mesh, density = _poisson_solution(inputs, config)
+    drop = density < np.quantile(density, config.poisson_density_quantile)
+    mesh.remove_vertices_by_mask(drop | _unsupported(inputs, mesh, config))
     return finish_mesh("poisson", mesh, config)
+
+
+def poisson_closed_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
+    """Poisson untrimmed, its main component: closed where the data surround the object (a
+    collision model, a print), with the area it bridges beyond the data as `filled_area_m2`."""
+    mesh, _ = _poisson_solution(inputs, config)
+    clusters, counts, _ = mesh.cluster_connected_triangles()
+    mesh.remove_triangles_by_mask(np.asarray(clusters) != int(np.argmax(counts)))
+    mesh.remove_unreferenced_vertices()
+    out = finish_mesh("poisson_closed", mesh, config)
+    unsupported = _unsupported(inputs, mesh, config)
+    v, t = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    bridged = unsupported[t].all(axis=1)
+    area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
+    return replace(out, filled_area_m2=out.filled_area_m2 + float(area[bridged].sum()))
 
 
 def ball_pivoting_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
@@ -287,6 +321,7 @@ def tsdf_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
 
 SURFACE_METHODS: dict[str, Callable[[SurfaceInput, SurfaceConfig], SurfaceMesh]] = {
     "poisson": poisson_mesh,
+    "poisson_closed": poisson_closed_mesh,
     "tsdf": tsdf_mesh,
     "ball_pivoting": ball_pivoting_mesh,
 }
@@ -305,6 +340,15 @@ def build_surface(
             f"unknown surface method '{method}'; valid: {', '.join(SURFACE_METHODS)}"
         )
     inputs = SurfaceInput(fused, depth_views, roi or RegionOfInterest(shape="none"), remove_points)
+    return surface_from(method, inputs, config)
+
+
+def surface_from(method: str, inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
+    """One surface from inputs that several methods may share (one Poisson solve)."""
+    if method not in SURFACE_METHODS:
+        raise ScannerError(
+            f"unknown surface method '{method}'; valid: {', '.join(SURFACE_METHODS)}"
+        )
     return SURFACE_METHODS[method](inputs, config)
 
 

@@ -25,6 +25,7 @@ import yaml
 from reconstruction.camera_model import StereoCamera
 from reconstruction.coverage import coverage_estimate
 from reconstruction.errors import ScannerError
+from reconstruction.mesh_topology import mesh_quality
 from reconstruction.outputs import save_outputs, summary
 from reconstruction.pipeline import ReconstructionResult, reconstruct_views
 from reconstruction.stage_timer import StageTimer
@@ -127,6 +128,12 @@ def reconstruct_scans(
         coverage = coverage_estimate(result.fused, centres)
         report["coverage_estimate"] = coverage.fraction
         report["unseen_area_m2"] = coverage.unseen_area_m2
+    closed = result.meshes.get("poisson_closed")
+    if closed is not None:
+        report["closed_model"] = {
+            "watertight": mesh_quality(closed).watertight,
+            "filled_area_m2": closed.filled_area_m2,
+        }
     truth = views.truths[0]
     to_first = to_first_hanging(views)
     if to_first is not None:

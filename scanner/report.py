@@ -193,6 +193,15 @@ def write_summary(report: dict, out: Path) -> Path:
             f"surface was in some camera's view; about {_fmt(1e4 * report['unseen_area_m2'], 1)}"
             " cm^2 were not (a further hanging would show them).",
         ]
+    closed = report.get("closed_model")
+    if closed:
+        lines += [
+            "",
+            f"Closed model (`mesh_poisson_closed`, for collision models and prints): "
+            f"{'watertight' if closed['watertight'] else 'NOT watertight'}; "
+            f"{_fmt(1e4 * closed['filled_area_m2'], 1)} cm^2 of it bridge where no data are "
+            "(filled, not seen).",
+        ]
     lines += _hangings_lines(report)
     if "handeye_error_mm" in report:
         lines += [
