@@ -47,14 +47,22 @@ def align_hangings(
     X_WC = [np.asarray(X) for X in X_WC]
     first = list(groups[0])
     reference = fuse_clouds([clouds[k] for k in first], [X_WC[k] for k in first], voxel_m)
-    points = [reference.points_W]
+    points, colors = [reference.points_W], [reference.colors]
     seen_depths = [views[k].depth for k in first if views[k].depth is not None]
     seen_poses = [X_WC[k] for k in first if views[k].depth is not None]
     alignments = []
     for hanging, group in enumerate(groups[1:], start=1):
         fused = fuse_clouds([clouds[k] for k in group], [X_WC[k] for k in group], voxel_m)
         seen = SeenSpace(tuple(seen_depths), tuple(seen_poses))
-        alignment = align_pass(hanging, fused.points_W, np.vstack(points), seen, config)
+        alignment = align_pass(
+            hanging,
+            fused.points_W,
+            np.vstack(points),
+            seen,
+            config,
+            fused.colors,
+            np.vstack(colors),
+        )
         alignments.append(alignment)
         if not alignment.verified:
             raise RefusedResultError(
@@ -67,4 +75,5 @@ def align_hangings(
                 seen_depths.append(views[k].depth)
                 seen_poses.append(X_WC[k])
         points.append(transform_points(alignment.T, fused.points_W))
+        colors.append(fused.colors)
     return X_WC, tuple(alignments)

@@ -49,6 +49,7 @@ class AlignmentConfig:
     free_space_margin_m: float = 0.003
     max_free_space_violation: float = 0.1
     max_ambiguity: float = 0.9
+    min_colour_agreement: float = 0.1
 
     def __post_init__(self) -> None:
         require_positive(
@@ -64,7 +65,9 @@ class AlignmentConfig:
         )
         require_count("alignment", self, ("runs", "ransac_iterations"))
         require_fraction(
-            "alignment", self, ("min_overlap", "max_free_space_violation", "max_ambiguity")
+            "alignment",
+            self,
+            ("min_overlap", "max_free_space_violation", "max_ambiguity", "min_colour_agreement"),
         )
 
 
@@ -86,6 +89,7 @@ class PassAlignment:
     overlap: float
     inlier_rms_m: float
     free_space_violation: float
+    colour_agreement: float  # correlation of matched points' grey values (1: not checked)
     ambiguity: float  # runner-up score / best score (0: no distinct runner-up)
     hypotheses: int
     failures: tuple[str, ...]  # the checks that failed (empty: verified)
@@ -160,12 +164,26 @@ def _refine(source, target, T0: np.ndarray, config: AlignmentConfig) -> np.ndarr
     return np.asarray(T)
 
 
-def _overlap(points: np.ndarray, tree, distance: float) -> tuple[float, float]:
-    d, _ = tree.query(points, distance_upper_bound=distance)
+@dataclass(frozen=True)
+class _Fit:
+    overlap: float
+    inlier_rms_m: float
+    colour_agreement: float
+
+
+def _fit(points, grey, tree, reference_grey, distance: float) -> _Fit:
+    """Overlap, inlier RMS, and the correlation of the grey values of matched points: a
+    rotation that fits the shape but not the texture (a symmetric shape flipped) correlates
+    near 0, the true one clearly above."""
+    d, idx = tree.query(points, distance_upper_bound=distance)
     inliers = np.isfinite(d)
-    if not inliers.any():
-        return 0.0, math.inf
-    return float(inliers.mean()), float(np.sqrt(np.mean(d[inliers] ** 2)))
+    if inliers.sum() < 10:
+        return _Fit(float(inliers.mean()), math.inf, 0.0)
+    a, b = grey[inliers], reference_grey[idx[inliers]]
+    spread = a.std() * b.std()
+    agreement = float(np.mean((a - a.mean()) * (b - b.mean())) / spread) if spread > 0 else 0.0
+    rms = float(np.sqrt(np.mean(d[inliers] ** 2)))
+    return _Fit(float(inliers.mean()), rms, agreement)
 
 
 def _smooth_depth(depth: DepthImage, jump_m: float) -> np.ndarray:
@@ -201,9 +219,10 @@ def free_space_violation(points_W: np.ndarray, seen: SeenSpace, margin_m: float)
     return violated / max(tested, 1)
 
 
-def _score(overlap: float, violation: float) -> float:
-    """Overlap with the reference, discounted by the share of seen-through space."""
-    return overlap * (1.0 - violation)
+def _score(fit: _Fit, violation: float) -> float:
+    """Overlap with the reference, discounted by the share of seen-through space and by how
+    little the texture agrees."""
+    return fit.overlap * (1.0 - violation) * max(fit.colour_agreement, 0.0)
 
 
 def align_pass(
@@ -212,24 +231,39 @@ def align_pass(
     reference: np.ndarray,
     seen: SeenSpace,
     config: AlignmentConfig = AlignmentConfig(),
+    colors: np.ndarray | None = None,
+    reference_colors: np.ndarray | None = None,
 ) -> PassAlignment:
-    """T that puts `points` (a pass's fused cloud) onto `reference`, with its verification."""
+    """T that puts `points` (a pass's fused cloud, colours (N, 3) uint8) onto `reference`,
+    with its verification. Without colours the texture check is left out."""
     from scipy.spatial import cKDTree
 
     source, src_f = _prepared(points, config.voxel_m)
     target, tgt_f = _prepared(reference, config.voxel_m)
     tree = cKDTree(reference)
+    textured = colors is not None and reference_colors is not None
+    grey = np.asarray(colors, float).mean(axis=1) if textured else np.zeros(len(points))
+    ref_grey = np.asarray(reference_colors, float).mean(axis=1) if textured else None
     sample = np.asarray(source.points)
     candidates = []
     for T0 in _hypotheses(source, target, src_f, tgt_f, config):
         T = _refine(source, target, T0, config)
-        overlap, rms = _overlap(transform_points(T, points), tree, config.inlier_distance_m)
+        fit = _fit(
+            transform_points(T, points),
+            grey,
+            tree,
+            ref_grey if textured else np.zeros(len(reference)),
+            config.inlier_distance_m,
+        )
+        if not textured:
+            fit = _Fit(fit.overlap, fit.inlier_rms_m, 1.0)
         violation = free_space_violation(
             transform_points(T, sample), seen, config.free_space_margin_m
         )
-        candidates.append((_score(overlap, violation), T, overlap, rms, violation))
+        candidates.append((_score(fit, violation), T, fit, violation))
     candidates.sort(key=lambda c: -c[0])
-    best_score, T, overlap, rms, violation = candidates[0]
+    best_score, T, fit, violation = candidates[0]
+    overlap, rms = fit.overlap, fit.inlier_rms_m
     runner_up = next(
         (
             c[0]
@@ -251,13 +285,26 @@ def align_pass(
             f"{100 * violation:.1f} % of the points in space the other views saw through "
             f"(limit {100 * config.max_free_space_violation:g} %)"
         )
+    if textured and fit.colour_agreement < config.min_colour_agreement:
+        failures.append(
+            f"the texture does not match (correlation {fit.colour_agreement:.2f}, need >= "
+            f"{config.min_colour_agreement:g}): another object, or a symmetric shape turned"
+        )
     if ambiguity > config.max_ambiguity:
         failures.append(
             f"ambiguous: another orientation fits {100 * ambiguity:.0f} % as well (a symmetric "
             "shape; scan a further hanging)"
         )
     return PassAlignment(
-        hanging, T, overlap, rms, violation, ambiguity, len(candidates), tuple(failures)
+        hanging,
+        T,
+        overlap,
+        rms,
+        violation,
+        fit.colour_agreement,
+        ambiguity,
+        len(candidates),
+        tuple(failures),
     )
 
 

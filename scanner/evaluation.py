@@ -90,6 +90,7 @@ def hangings_report(result, views: Gathered, to_first, voxel_m: float) -> dict:
                 overlap=a.overlap,
                 inlier_rms_mm=1e3 * a.inlier_rms_m,
                 free_space_violation=a.free_space_violation,
+                colour_agreement=a.colour_agreement,
                 ambiguity=a.ambiguity,
                 verified=a.verified,
             )

@@ -77,9 +77,10 @@ def test_free_space_counts_points_in_front_of_what_a_view_measured():
     assert free_space_violation(half, seen, 0.003) == pytest.approx(0.5)
 
 
-def _partial_cloud(vertices: np.ndarray, triangles: np.ndarray, X: np.ndarray, seed: int):
+def _partial_cloud(vertices, triangles, X, seed: int, texture=None):
     """Surface samples of the object placed at X, only its lower 70 % (a hung object seen
-    from below), with 0.2 mm noise: what one pass of a scan measures."""
+    from below), with 0.2 mm noise: what one pass of a scan measures. With `texture` (object
+    frame points -> grey), also their colours."""
     import open3d as o3d
 
     mesh = o3d.geometry.TriangleMesh(
@@ -87,10 +88,37 @@ def _partial_cloud(vertices: np.ndarray, triangles: np.ndarray, X: np.ndarray, s
         o3d.utility.Vector3iVector(np.array(triangles, np.int32)),
     )
     o3d.utility.random.seed(seed)
-    p = transform_points(X, np.asarray(mesh.sample_points_uniformly(60_000).points))
+    p_O = np.asarray(mesh.sample_points_uniformly(60_000).points)
+    p = transform_points(X, p_O)
     z = p[:, 2]
     keep = z < z.min() + 0.7 * np.ptp(z)
-    return p[keep] + np.random.default_rng(seed).normal(0, 0.0002, (keep.sum(), 3))
+    points = p[keep] + np.random.default_rng(seed).normal(0, 0.0002, (keep.sum(), 3))
+    if texture is None:
+        return points
+    grey = np.clip(texture(p_O[keep]), 0, 255).astype(np.uint8)
+    return points, np.repeat(grey[:, None], 3, axis=1)
+
+
+def _stripes(p_O: np.ndarray) -> np.ndarray:
+    return 128 + 100 * np.sin(p_O[:, 0] / 0.006) * np.cos(p_O[:, 1] / 0.009)
+
+
+def _other_stripes(p_O: np.ndarray) -> np.ndarray:
+    return 128 + 100 * np.sin(p_O[:, 2] / 0.004 + 1.0)
+
+
+def test_the_texture_must_agree_another_object_of_the_same_shape_is_refused():
+    mesh = resolve_object("pebble", 0.2)
+    X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
+    X1 = hung_pose(X0, 3, 1)
+    ref, ref_colors = _partial_cloud(mesh.vertices, mesh.triangles, X0, 0, _stripes)
+    same, same_colors = _partial_cloud(mesh.vertices, mesh.triangles, X1, 1, _stripes)
+    a = align_pass(1, same, ref, SeenSpace((), ()), AlignmentConfig(), same_colors, ref_colors)
+    assert a.verified, a.failures
+    assert a.colour_agreement > 0.5
+    other, other_colors = _partial_cloud(mesh.vertices, mesh.triangles, X1, 1, _other_stripes)
+    b = align_pass(1, other, ref, SeenSpace((), ()), AlignmentConfig(), other_colors, ref_colors)
+    assert not b.verified and any("texture does not match" in f for f in b.failures)
 
 
 @pytest.mark.parametrize("name", ["bracket", "pebble"])
