@@ -87,13 +87,14 @@ def test_captures_are_untouched_and_a_second_run_is_the_same(runs, scan_dir, tmp
     for name in ("mesh_poisson.ply", "mesh_tsdf.ply"):
         # The same surface. TSDF's parallel extraction lists the vertices in another order
         # each run, and the small-hole filler visits boundary loops in that order, so a run
-        # may close one sub-millimetre loop with a slightly different fan (seen: 4 of 223k
-        # triangles): same vertices, same area to 1e-5.
+        # may close a sub-millimetre loop with a different fan or not at all (seen: 4 of 223k
+        # triangles, 1 mm^2 of area): same vertices, triangle counts within 1e-4, areas within
+        # what a few such loops (each at most pi (1 mm)^2) can add: 3e-5 m^2.
         a = o3d.io.read_triangle_mesh(str(again.results_dir / name))
         b = o3d.io.read_triangle_mesh(str(first.results_dir / name))
         assert abs(len(a.triangles) - len(b.triangles)) <= 1e-4 * len(b.triangles), name
         area_a, area_b = a.get_surface_area(), b.get_surface_area()
-        assert area_a == pytest.approx(area_b, rel=1e-5), name
+        assert area_a == pytest.approx(area_b, abs=3e-5), name
         va, vb = np.asarray(a.vertices), np.asarray(b.vertices)
         assert cKDTree(va).query(vb)[0].max() < 1e-7, name
         assert cKDTree(vb).query(va)[0].max() < 1e-7, name
