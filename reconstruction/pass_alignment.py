@@ -4,7 +4,10 @@ truth and verified before it is used.
 Within a pass the robot poses register the views; between passes the object was re-hung, so
 one rigid transform T (pass frame -> reference frame) is unknown. It is estimated by global
 registration (FPFH features, Open3D's RANSAC, several independent runs for several
-hypotheses), each hypothesis refined by point-to-plane ICP, and the best one verified:
+hypotheses) and by coarse ICP from the centroids under each of the 60 rotations of the
+icosahedral group (feature matching alone missed the true turn of a teapot, whose round body
+matches its flipped self better than its details do; the start grid found it); each
+hypothesis is refined by point-to-plane ICP, and the best one verified:
 - overlap: the fraction of the pass's points with a reference point within the inlier distance;
 - inlier RMS: the distance of those points, comparable to the stereo noise;
 - free space: points of the pass must not lie in space the reference views saw through (in
@@ -31,7 +34,8 @@ class AlignmentConfig:
     """Global alignment of passes (`reconstruction.alignment`; lengths in metres).
 
     voxel_m: the features' sampling (normals over 2.5, FPFH over 5 voxels). runs: independent
-    RANSAC runs (hypotheses). distinct_rotation_rad: hypotheses closer than this are one.
+    RANSAC runs (hypotheses). coarse_voxel_m / coarse_starts_kept: the sampling of the
+    rotation-grid ICP starts and how many of their best fits become hypotheses. distinct_rotation_rad: hypotheses closer than this are one.
     min_overlap, max_inlier_rms_m, max_free_space_violation: verification limits.
     inlier_distance_m: a point within this of the reference counts as overlapping.
     free_space_margin_m: how far in front of a measured surface a point must lie to count as
@@ -42,6 +46,8 @@ class AlignmentConfig:
 
     voxel_m: float = 0.003
     runs: int = 8
+    coarse_voxel_m: float = 0.008
+    coarse_starts_kept: int = 8
     ransac_iterations: int = 100_000
     distinct_rotation_rad: float = math.radians(10.0)
     inlier_distance_m: float = 0.0015
@@ -60,13 +66,14 @@ class AlignmentConfig:
             self,
             (
                 "voxel_m",
+                "coarse_voxel_m",
                 "distinct_rotation_rad",
                 "inlier_distance_m",
                 "max_inlier_rms_m",
                 "free_space_margin_m",
             ),
         )
-        require_count("alignment", self, ("runs", "ransac_iterations"))
+        require_count("alignment", self, ("runs", "ransac_iterations", "coarse_starts_kept"))
         require_fraction(
             "alignment",
             self,
@@ -148,6 +155,39 @@ def _hypotheses(source, target, src_f, tgt_f, config: AlignmentConfig) -> list[n
         )
         out.append(np.asarray(result.transformation))
     return out
+
+
+def _grid_hypotheses(source, target, config: AlignmentConfig) -> list[np.ndarray]:
+    """Coarse point-to-plane ICP from the centroids under each rotation of the icosahedral
+    group (no two rotations of a 3D object are more than ~45 deg from one of them: inside
+    ICP's basin with wide gates); the best fits by overlap."""
+    import open3d as o3d
+    from scipy.spatial.transform import Rotation
+
+    reg = o3d.pipelines.registration
+    voxel = config.coarse_voxel_m
+    src, tgt = source.voxel_down_sample(voxel), target.voxel_down_sample(voxel)
+    for cloud in (src, tgt):
+        cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel, max_nn=30))
+    c_src = np.asarray(src.points).mean(axis=0)
+    c_tgt = np.asarray(tgt.points).mean(axis=0)
+    fits = []
+    for R in Rotation.create_group("I").as_matrix():
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, c_tgt - R @ c_src
+        for distance in (5 * voxel, 2.5 * voxel, 1.25 * voxel):
+            result = reg.registration_icp(
+                src,
+                tgt,
+                distance,
+                T,
+                reg.TransformationEstimationPointToPlane(),
+                reg.ICPConvergenceCriteria(max_iteration=30),
+            )
+            T = np.asarray(result.transformation)
+        fits.append((result.fitness, T))
+    fits.sort(key=lambda f: -f[0])
+    return [T for _, T in fits[: config.coarse_starts_kept]]
 
 
 def _refine(source, target, T0: np.ndarray, config: AlignmentConfig) -> np.ndarray:
@@ -249,7 +289,8 @@ def align_pass(
     ref_grey = np.asarray(reference_colors, float).mean(axis=1) if textured else None
     sample = np.asarray(source.points)
     candidates = []
-    for T0 in _hypotheses(source, target, src_f, tgt_f, config):
+    starts = _hypotheses(source, target, src_f, tgt_f, config)
+    for T0 in starts + _grid_hypotheses(source, target, config):
         T = _refine(source, target, T0, config)
         fit = _fit(
             transform_points(T, points),
