@@ -22,33 +22,16 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from reconstruction.calibration.hand_eye import HAND_EYE_METHODS, HandEyeMethodError, solve_hand_eye
 from reconstruction.checks import require_choice, require_count, require_positive
 from reconstruction.errors import ScannerError
-from reconstruction.filtering import FilteredCloud, o3d_cloud
-from reconstruction.robust_loss import check_loss, irls_weights
-from reconstruction.transforms import (
-    invert,
-    mean_pose,
-    pose_difference,
-    rotate_vectors,
-    transform_points,
-    twist_to_pose,
-)
-
-
-@dataclass(frozen=True)
-class RefineLevel:
-    """One stage of the joint refinement: correspondence gate and iteration cap."""
-
-    max_correspondence_m: float
-    max_iterations: int
-
-    def __post_init__(self) -> None:
-        require_positive("handeye.refine_levels", self, ("max_correspondence_m",))
-        require_count("handeye.refine_levels", self, ("max_iterations",))
+from reconstruction.filtering import FilteredCloud
+from reconstruction.handeye_basin import CoarseHandEyeConfig
+from reconstruction.handeye_diagnosis import ConvergenceLimits, HandEyeDiagnosis, diagnose
+from reconstruction.handeye_refine import CloudFit, HandEyeRefinement, RefineLevel, refine_on_clouds
+from reconstruction.robust_loss import check_loss
+from reconstruction.transforms import invert, mean_pose, pose_difference
 
 
 def _default_refine_levels() -> tuple[RefineLevel, ...]:
@@ -79,11 +62,14 @@ class HandEyeConfig:
     # A step below these (10 um, 0.0006 deg) is 50x under the targets (0.5 mm, 0.1 deg).
     refine_tolerance_m: float = 1e-5
     refine_tolerance_rad: float = 1e-5
-    # Sanity limits: a correction larger than this is not trusted (the mount cannot be that
-    # far off; the scan probably lacks the rotations that make X_FC observable).
-    max_correction_m: float = 0.02
-    max_correction_rad: float = math.radians(5.0)
+    # Sanity limits: a correction larger than this is not trusted (a hand-made mount is
+    # within a few centimetres and degrees; beyond, the scan probably lacks the rotations that
+    # make X_FC observable).
+    max_correction_m: float = 0.1
+    max_correction_rad: float = math.radians(20.0)
     seed: int = 0
+    coarse: CoarseHandEyeConfig = field(default_factory=CoarseHandEyeConfig)
+    convergence: ConvergenceLimits = field(default_factory=ConvergenceLimits)
 
     def __post_init__(self) -> None:
         require_choice("handeye", "axxb_method", self.axxb_method, HAND_EYE_METHODS)
@@ -108,6 +94,20 @@ class HandEyeConfig:
         require_count("handeye", self, ("refine_max_points_per_view",), minimum=10)
         require_count("handeye", self, ("axxb_max_rejection_rounds",), minimum=0)
 
+    @property
+    def fine_fit(self) -> CloudFit:
+        return CloudFit(
+            self.refine_levels,
+            self.refine_voxel_size_m,
+            self.refine_target_voxel_size_m,
+            self.refine_max_points_per_view,
+            self.refine_loss,
+            self.refine_loss_scale_m,
+            self.refine_tolerance_m,
+            self.refine_tolerance_rad,
+            self.seed,
+        )
+
 
 @dataclass(frozen=True, eq=False)
 class AxxbSolution:
@@ -125,35 +125,6 @@ class AxxbSolution:
 
 
 @dataclass(frozen=True, eq=False)
-class HandEyeRefinement:
-    """The joint refinement: X_FC, the RMS point-to-plane residual of the inlier matches
-    before/after, the number of matches, iterations, and how well the scan pins X_FC down.
-
-    `formal_std`: standard deviations of the 6 parameters (rotation rad about x, y, z of C,
-    then translation m) from the Gauss-Newton normal matrix and the residual; it assumes
-    independent matches, so it understates the real spread.
-    `weakest_mode` / `weakest_sensitivity`: the direction of X_FC change the clouds notice
-    least (rotation components scaled by the working distance, so all six are lengths at the
-    object; unit vector) and the RMS point-to-plane change it causes per unit of motion at the
-    object (dimensionless, 1 = fully felt). With every view aimed at the scan centre the weakest
-    mode is mostly a roll of each view about its optical axis, i.e. a turn about the object's
-    centre, which a round object hardly shows (synthetic scans: ~0.01 on the pebble, ~0.02 on
-    the bracket). Per-view pose errors (joint offsets) leak into X_FC along it, while the fused
-    surface barely changes."""
-
-    X_FC: np.ndarray
-    X_FC_start: np.ndarray
-    rms_before_m: float
-    rms_after_m: float
-    n_matches: int
-    iterations: int
-    formal_std: np.ndarray
-    converged: bool
-    weakest_mode: np.ndarray
-    weakest_sensitivity: float
-
-
-@dataclass(frozen=True, eq=False)
 class HandEyeResult:
     """What the correction decided: X_FC used downstream, its change from the nominal one,
     every AX = XB solver's answer, the refinement (if run), and notes on what was not trusted."""
@@ -164,8 +135,10 @@ class HandEyeResult:
     change_rotation_rad: float
     axxb: dict[str, AxxbSolution]
     refinement: HandEyeRefinement | None
-    source: str  # "nominal", "axxb:<method>" or "refined"
+    source: str  # "nominal", "coarse", "axxb:<method>" or "refined"
     notes: tuple[str, ...]
+    coarse: HandEyeRefinement | None
+    diagnosis: HandEyeDiagnosis
 
 
 def _axxb_residuals(
@@ -217,134 +190,6 @@ def solve_axxb(
     )
 
 
-@dataclass(frozen=True, eq=False)
-class _RefineView:
-    source_C: np.ndarray  # thinned points
-    target_C: np.ndarray
-    normals_C: np.ndarray
-    tree: cKDTree
-
-
-def _prepare(cloud: FilteredCloud, config: HandEyeConfig, rng: np.random.Generator) -> _RefineView:
-    pc = o3d_cloud(cloud.points_C, normals=cloud.normals_C)
-    target = pc.voxel_down_sample(config.refine_target_voxel_size_m)
-    normals = np.asarray(target.normals)
-    normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-    source = np.asarray(pc.voxel_down_sample(config.refine_voxel_size_m).points)
-    if len(source) > config.refine_max_points_per_view:
-        pick = rng.choice(len(source), config.refine_max_points_per_view, replace=False)
-        source = source[np.sort(pick)]
-    target_C = np.asarray(target.points).copy()
-    return _RefineView(source, target_C, normals, cKDTree(target_C))
-
-
-def _matches(
-    views: Sequence[_RefineView],
-    X_WF: Sequence[np.ndarray],
-    sources_of: dict[int, list[int]],
-    X_FC: np.ndarray,
-    gate_m: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals n_W . (p_W - q_W) of every source point with a target point within the gate,
-    and their Jacobians (n, 6) w.r.t. X_FC <- X_FC @ twist(w, v). All sources of one target
-    are queried together (one KD-tree query per target view)."""
-    residuals, jacobians = [], []
-    X_WC = [X @ X_FC for X in X_WF]
-    for t, sources in sources_of.items():
-        vt = views[t]
-        X_CtW = invert(X_WC[t])
-        p_Ct = np.vstack([transform_points(X_CtW @ X_WC[s], views[s].source_C) for s in sources])
-        p_Cs = np.vstack([views[s].source_C for s in sources])
-        R_WCs = np.vstack(
-            [np.broadcast_to(X_WC[s][:3, :3], (len(views[s].source_C), 3, 3)) for s in sources]
-        )
-        d, k = vt.tree.query(p_Ct, distance_upper_bound=gate_m)
-        ok = np.isfinite(d)
-        if not ok.any():
-            continue
-        p_Cs, p_Ct, R_WCs = p_Cs[ok], p_Ct[ok], R_WCs[ok]
-        q_Ct, n_Ct = vt.target_C[k[ok]], vt.normals_C[k[ok]]
-        # Both points in C_t: n . (p - q) is the same number in W, and cheaper here.
-        r = np.einsum("ij,ij->i", n_Ct, p_Ct - q_Ct)
-        # d p_W / d(w, v) = R_WC [-[p_C]x, I] for p_W = X_WF @ X_FC @ twist(w, v) @ p_C; the
-        # row n_W^T R_WC is (n_W^T R_WCs) for the source and n_Ct^T for the target.
-        n_W = rotate_vectors(X_WC[t], n_Ct)
-        nR_s = np.einsum("ij,ijk->ik", n_W, R_WCs)
-        J_rot = np.cross(p_Cs, nR_s) - np.cross(q_Ct, n_Ct)
-        residuals.append(r)
-        jacobians.append(np.hstack([J_rot, nR_s - n_Ct]))
-    if not residuals:
-        return np.zeros(0), np.zeros((0, 6))
-    return np.concatenate(residuals), np.vstack(jacobians)
-
-
-def refine_on_clouds(
-    clouds: Sequence[FilteredCloud],
-    X_WF: Sequence[np.ndarray],
-    pairs: Sequence[tuple[int, int]],
-    X_FC_start: np.ndarray,
-    config: HandEyeConfig,
-) -> HandEyeRefinement:
-    """Gauss-Newton with a robust loss (IRLS) over the one X_FC, point-to-plane between every
-    overlapping pair in both directions, correspondences re-found at every iteration."""
-    rng = np.random.default_rng(config.seed)
-    views = [_prepare(c, config, rng) for c in clouds]
-    sources_of: dict[int, list[int]] = {}
-    for s, t in sorted(set(pairs) | {(t, s) for s, t in pairs}):
-        sources_of.setdefault(t, []).append(s)
-    X_FC = np.asarray(X_FC_start, float).copy()
-    rms_before = None
-    iterations = 0
-    converged = False
-    H = np.eye(6)
-    r = np.zeros(0)
-    w = np.zeros(0)
-    for level in config.refine_levels:
-        converged = False
-        for _ in range(level.max_iterations):
-            r, J = _matches(views, X_WF, sources_of, X_FC, level.max_correspondence_m)
-            if len(r) < 6:
-                raise ScannerError(
-                    "hand-eye refinement: the views do not overlap (fewer than 6 matches)"
-                )
-            if rms_before is None:
-                rms_before = float(np.sqrt(np.mean(r**2)))
-            w = irls_weights(r, config.refine_loss, config.refine_loss_scale_m)
-            H = J.T @ (w[:, None] * J)
-            g = J.T @ (w * r)
-            delta = -np.linalg.solve(H + 1e-12 * np.trace(H) * np.eye(6), g)
-            X_FC = X_FC @ twist_to_pose(delta)
-            iterations += 1
-            if (
-                np.linalg.norm(delta[:3]) < config.refine_tolerance_rad
-                and np.linalg.norm(delta[3:]) < config.refine_tolerance_m
-            ):
-                converged = True
-                break
-    r, J = _matches(views, X_WF, sources_of, X_FC, config.refine_levels[-1].max_correspondence_m)
-    w = irls_weights(r, config.refine_loss, config.refine_loss_scale_m)
-    H = J.T @ (w[:, None] * J)
-    # Formal covariance sigma^2 H^-1; matches are correlated (neighbouring points share errors)
-    # so this understates the true spread, but it shows which directions the scan constrains.
-    sigma2 = float(np.sum(w * r**2) / max(len(r) - 6, 1))
-    formal_std = np.sqrt(np.clip(np.diag(np.linalg.pinv(H)) * sigma2, 0, None))
-    distance_m = float(np.mean([np.median(v.source_C[:, 2]) for v in views]))
-    scale = np.array([distance_m] * 3 + [1.0] * 3)
-    eigval, eigvec = np.linalg.eigh(H / scale[:, None] / scale[None, :] / max(float(w.sum()), 1.0))
-    return HandEyeRefinement(
-        X_FC,
-        np.asarray(X_FC_start, float),
-        float(rms_before),
-        float(np.sqrt(np.mean(r**2))) if len(r) else math.nan,
-        len(r),
-        iterations,
-        formal_std,
-        converged,
-        eigvec[:, 0] * np.sign(eigvec[np.argmax(np.abs(eigvec[:, 0])), 0]),
-        float(np.sqrt(max(eigval[0], 0.0))),
-    )
-
-
 def correct_handeye(
     clouds: Sequence[FilteredCloud],
     X_WF: Sequence[np.ndarray],
@@ -352,19 +197,28 @@ def correct_handeye(
     pairs: Sequence[tuple[int, int]],
     X_FC_nominal: np.ndarray,
     config: HandEyeConfig,
+    coarse: HandEyeRefinement | None = None,
 ) -> HandEyeResult:
     """AX = XB with every OpenCV method on the refined poses (when there are any), then the
-    joint refinement from the configured method's answer (or the nominal X_FC when that answer
-    is implausible), each step checked against the sanity limits."""
+    joint refinement from the coarse stage's answer (`coarse`, when it ran and is plausible),
+    else from the configured method's answer (or the nominal X_FC when that answer is
+    implausible), each step checked against the sanity limits; then the diagnosis."""
     X_FC_nominal = np.asarray(X_FC_nominal, float)
     notes: list[str] = []
     axxb: dict[str, AxxbSolution] = {}
     X_start, source = X_FC_nominal, "nominal"
+    if coarse is not None:
+        if plausible_correction(coarse.X_FC, X_FC_nominal, config):
+            X_start, source = coarse.X_FC, "coarse"
+        else:
+            notes.append("the coarse hand-eye fit moved X_FC beyond the sanity limits; not used")
     if X_WC_refined is not None and len(X_WF) >= 3:
         for name in HAND_EYE_METHODS:
             axxb[name] = solve_axxb(X_WF, X_WC_refined, name, config)
         chosen = axxb[config.axxb_method]
-        if _plausible(chosen.X_FC, X_FC_nominal, config):
+        if source == "coarse":
+            pass  # the coarse fit saw every overlap; AX = XB stays a check on it
+        elif plausible_correction(chosen.X_FC, X_FC_nominal, config):
             X_start, source = chosen.X_FC, f"axxb:{config.axxb_method}"
         else:
             notes.append(
@@ -374,8 +228,8 @@ def correct_handeye(
     refinement = None
     X_FC = X_start
     if config.refine and pairs:
-        refinement = refine_on_clouds(clouds, X_WF, pairs, X_start, config)
-        if _plausible(refinement.X_FC, X_FC_nominal, config):
+        refinement = refine_on_clouds(clouds, X_WF, pairs, X_start, config.fine_fit)
+        if plausible_correction(refinement.X_FC, X_FC_nominal, config):
             X_FC, source = refinement.X_FC, "refined"
         else:
             notes.append(
@@ -384,11 +238,21 @@ def correct_handeye(
             )
     elif config.refine:
         notes.append("no overlapping view pairs: hand-eye refinement skipped")
+    diagnosis = diagnose(
+        X_FC,
+        refinement,
+        axxb[config.axxb_method].X_FC if config.axxb_method in axxb else None,
+        None if coarse is None else coarse.X_FC,
+        config.convergence,
+    )
     dt, dr = pose_difference(X_FC_nominal, X_FC)
-    return HandEyeResult(X_FC_nominal, X_FC, dt, dr, axxb, refinement, source, tuple(notes))
+    return HandEyeResult(
+        X_FC_nominal, X_FC, dt, dr, axxb, refinement, source, tuple(notes), coarse, diagnosis
+    )
 
 
-def _plausible(X_FC: np.ndarray, X_FC_nominal: np.ndarray, config: HandEyeConfig) -> bool:
+def plausible_correction(X_FC: np.ndarray, X_FC_nominal: np.ndarray, config: HandEyeConfig) -> bool:
+    """Finite and within the sanity limits of the nominal X_FC."""
     if not np.all(np.isfinite(X_FC)):
         return False
     dt, dr = pose_difference(X_FC_nominal, X_FC)

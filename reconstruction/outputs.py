@@ -79,19 +79,37 @@ def summary(result: ReconstructionResult) -> dict:
                 for name, s in he.axxb.items()
             },
         }
-        if he.refinement is not None:
-            r = he.refinement
-            out["handeye"]["refinement"] = {
-                "rms_before_m": r.rms_before_m,
-                "rms_after_m": r.rms_after_m,
-                "matches": r.n_matches,
-                "iterations": r.iterations,
-                "converged": r.converged,
-                "formal_std": r.formal_std.tolist(),
-                "weakest_mode": r.weakest_mode.tolist(),
-                "weakest_sensitivity": r.weakest_sensitivity,
-            }
+        for name, r in (("coarse", he.coarse), ("refinement", he.refinement)):
+            if r is not None:
+                out["handeye"][name] = _fit_record(r)
+        d = he.diagnosis
+        out["handeye_converged"] = d.converged
+        out["handeye"]["diagnosis"] = {
+            "converged": d.converged,
+            "match_fraction": d.match_fraction,
+            "match_rms_m": d.match_rms_m,
+            "axxb_disagreement_m": d.axxb_disagreement_m,
+            "axxb_disagreement_rad": d.axxb_disagreement_rad,
+            "coarse_to_fine_m": d.coarse_to_fine_m,
+            "coarse_to_fine_rad": d.coarse_to_fine_rad,
+            "failures": list(d.failures),
+        }
     return out
+
+
+def _fit_record(r) -> dict:
+    return {
+        "X_FC": r.X_FC.tolist(),
+        "rms_before_m": r.rms_before_m,
+        "rms_after_m": r.rms_after_m,
+        "matches": r.n_matches,
+        "match_fraction": r.match_fraction,
+        "iterations": r.iterations,
+        "converged": r.converged,
+        "formal_std": r.formal_std.tolist(),
+        "weakest_mode": r.weakest_mode.tolist(),
+        "weakest_sensitivity": r.weakest_sensitivity,
+    }
 
 
 def save_outputs(
@@ -103,6 +121,9 @@ def save_outputs(
     directory.mkdir(parents=True, exist_ok=True)
     paths = {"fused_cloud": directory / "fused_cloud.ply"}
     save_cloud(result.fused, paths["fused_cloud"])
+    if result.fused_nominal is not None:
+        paths["fused_cloud_nominal"] = directory / "fused_cloud_nominal.ply"
+        save_cloud(result.fused_nominal, paths["fused_cloud_nominal"])
     for name, mesh in result.meshes.items():
         for suffix in mesh_suffixes:
             path = directory / f"mesh_{name}{suffix}"

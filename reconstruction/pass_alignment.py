@@ -35,7 +35,8 @@ class AlignmentConfig:
 
     voxel_m: the features' sampling (normals over 2.5, FPFH over 5 voxels). runs: independent
     RANSAC runs (hypotheses). coarse_voxel_m / coarse_starts_kept: the sampling of the
-    rotation-grid ICP starts and how many of their best fits become hypotheses. distinct_rotation_rad: hypotheses closer than this are one.
+    rotation-grid ICP starts and how many of their best fits become hypotheses.
+    distinct_rotation_rad: hypotheses closer than this are one.
     min_overlap, max_inlier_rms_m, max_free_space_violation: verification limits.
     inlier_distance_m: a point within this of the reference counts as overlapping.
     free_space_margin_m: how far in front of a measured surface a point must lie to count as

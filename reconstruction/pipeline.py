@@ -32,7 +32,13 @@ from reconstruction.filtering import (
     RemovePoints,
     filter_view,
 )
-from reconstruction.handeye_correction import HandEyeConfig, HandEyeResult, correct_handeye
+from reconstruction.handeye_basin import coarse_handeye, displacement_at
+from reconstruction.handeye_correction import (
+    HandEyeConfig,
+    HandEyeResult,
+    correct_handeye,
+    plausible_correction,
+)
 from reconstruction.merge import align_hangings, group_positions
 from reconstruction.pass_alignment import AlignmentConfig, PassAlignment
 from reconstruction.posegraph import PoseEdge, PoseGraphConfig, optimise_pose_graph
@@ -150,6 +156,8 @@ class ReconstructionResult:
     notes: tuple[str, ...]
     clouds: tuple[FilteredCloud, ...]  # per kept view, in C (for `build_surfaces`)
     alignments: tuple[PassAlignment, ...] = ()  # hangings 2, 3, ... onto the first
+    # The fused cloud at the nominal X_FC, kept when the correction did not converge.
+    fused_nominal: FusedCloud | None = None
 
 
 def filter_views(
@@ -342,31 +350,58 @@ def reconstruct_views(
     timer = StageTimer()
     notes: list[str] = []
 
+    all_views = list(views)
     with timer("filter"):
-        views, clouds, skipped = filter_views(views, X_FC_nominal, config, remove_points)
-    if len(views) < config.min_views:
-        raise ScannerError(
-            f"only {len(views)} usable view(s) after filtering, {config.min_views} needed "
-            f"(skipped: {', '.join(f'{i}: {why}' for i, why in skipped) or 'none'})"
-        )
+        views, clouds, skipped = filter_views(all_views, X_FC_nominal, config, remove_points)
+    _require_views(views, skipped, config)
+    groups = group_positions(views, hangings or [[v.index for v in views]])
+    coarse = None
+    X_FC_start = X_FC_nominal
+    if config.handeye.enabled and config.handeye.coarse.enabled and len(views) >= 3:
+        with timer("handeye_coarse"):
+            coarse = coarse_handeye(
+                clouds,
+                [v.X_WF for v in views],
+                groups,
+                X_FC_nominal,
+                config.handeye.coarse,
+                config.handeye.seed,
+            )
+        if coarse is not None and plausible_correction(coarse.X_FC, X_FC_nominal, config.handeye):
+            X_FC_start = coarse.X_FC
+            moved = displacement_at(X_FC_nominal, X_FC_start, _working_distance_m(clouds))
+            if moved > config.handeye.coarse.refilter_above_m:
+                # The crop and the robot's points are placed in W: redo them at the new poses.
+                with timer("filter"):
+                    views, clouds, skipped = filter_views(
+                        all_views, X_FC_start, config, remove_points
+                    )
+                _require_views(views, skipped, config)
+                groups = group_positions(views, hangings or [[v.index for v in views]])
     X_WF = [v.X_WF for v in views]
     X_WC_kin = [X @ X_FC_nominal for X in X_WF]
-    groups = group_positions(views, hangings or [[v.index for v in views]])
+    X_WC_start = [X @ X_FC_start for X in X_WF]
 
     registered = RegisteredViews((), None, (), ())
     if (config.icp.enabled or config.handeye.enabled) and len(views) >= 2:
         indices = [v.index for v in views]
-        registered = register_hangings(clouds, X_WC_kin, indices, groups, config, timer)
+        registered = register_hangings(clouds, X_WC_start, indices, groups, config, timer)
         if not registered.pairs:
             notes.append("no overlapping view pairs: registration and correction skipped")
 
     handeye = None
     X_FC = X_FC_nominal
-    X_WC = list(registered.X_WC) if registered.X_WC is not None else X_WC_kin
+    X_WC = list(registered.X_WC) if registered.X_WC is not None else X_WC_start
     if config.handeye.enabled and len(views) >= 2:
         with timer("handeye"):
             handeye = correct_handeye(
-                clouds, X_WF, registered.X_WC, registered.pairs, X_FC_nominal, config.handeye
+                clouds,
+                X_WF,
+                registered.X_WC,
+                registered.pairs,
+                X_FC_nominal,
+                config.handeye,
+                coarse,
             )
         X_FC = handeye.X_FC
         notes += handeye.notes
@@ -388,6 +423,10 @@ def reconstruct_views(
             )
     hanging_of = {k: h for h, group in enumerate(groups) for k in group}
     fused, meshes, surface_notes = build_surfaces(views, clouds, X_WC, config, remove_points, timer)
+    fused_nominal = None
+    if handeye is not None and not handeye.diagnosis.converged:
+        # Nothing is lost: the model at the nominal poses stays beside the doubtful one.
+        fused_nominal = fuse_clouds(clouds, X_WC_kin, config.surfaces.fused_voxel_size_m)
     notes += surface_notes
     view_results = tuple(
         ViewResult(
@@ -413,4 +452,17 @@ def reconstruct_views(
         tuple(notes),
         tuple(clouds),
         alignments,
+        fused_nominal,
     )
+
+
+def _require_views(views, skipped, config: ReconstructionConfig) -> None:
+    if len(views) < config.min_views:
+        raise ScannerError(
+            f"only {len(views)} usable view(s) after filtering, {config.min_views} needed "
+            f"(skipped: {', '.join(f'{i}: {why}' for i, why in skipped) or 'none'})"
+        )
+
+
+def _working_distance_m(clouds: Sequence[FilteredCloud]) -> float:
+    return float(np.mean([np.median(c.points_C[:, 2]) for c in clouds if len(c)]))

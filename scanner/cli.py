@@ -218,6 +218,7 @@ def _scan(args: argparse.Namespace) -> int:
         f"{r['views_skipped']} skipped; robot motion {r['robot_motion_s']:.1f} s, "
         f"wall {r['wall_s']:.1f} s; status {r['status']}"
     )
+    _warn_handeye(r)
     print(f"scan directory: {result.scan_dir}")
     print(f"report: {result.scan_dir / 'results' / 'report.json'}")
     if (result.scan_dir / "results" / "summary.md").is_file():
@@ -274,8 +275,17 @@ def _reconstruct(args: argparse.Namespace) -> int:
             f"{r['fscore_1mm']:.3f}, completeness(2 mm) {r['completeness_2mm']:.3f}; "
             f"hand-eye error {r['handeye_error_mm']:.3f} mm / {r['handeye_error_deg']:.4f} deg"
         )
+    _warn_handeye(r)
     print(f"results: {run.results_dir}")
     return 0
+
+
+def _warn_handeye(report: dict) -> None:
+    from scanner.report import handeye_warning
+
+    warning = handeye_warning(report)
+    if warning:
+        print(warning)
 
 
 def _merge(args: argparse.Namespace) -> int:
@@ -296,6 +306,7 @@ def _merge(args: argparse.Namespace) -> int:
             f"{r['primary_surface']}: chamfer {r['chamfer_mm']:.3f} mm, completeness(2 mm) "
             f"{r['completeness_2mm']:.3f}; alignment error {r['alignment_error_mm']:.3f} mm"
         )
+    _warn_handeye(r)
     print(f"results: {run.results_dir}")
     return 0
 

@@ -68,7 +68,23 @@ def _write_results(result, processing: ProcessingConfig, truth, out: Path) -> di
         out / "reconstruction.yaml",
         yaml.safe_dump({"processing": to_dict(processing), **details}, sort_keys=False),
     )
+    converged = {}
+    if "handeye" in details:
+        d = details["handeye"]["diagnosis"]
+        converged = {
+            "handeye_converged": d["converged"],
+            "handeye_diagnosis": {
+                "match_fraction": d["match_fraction"],
+                "match_rms_mm": 1e3 * d["match_rms_m"],
+                "axxb_disagreement_mm": 1e3 * d["axxb_disagreement_m"],
+                "axxb_disagreement_deg": math.degrees(d["axxb_disagreement_rad"]),
+                "coarse_to_fine_mm": 1e3 * d["coarse_to_fine_m"],
+                "coarse_to_fine_deg": math.degrees(d["coarse_to_fine_rad"]),
+                "failures": d["failures"],
+            },
+        }
     return {
+        **converged,
         "X_FC_estimate": result.X_FC.tolist(),
         "X_FC_change_mm": 1e3 * details["X_FC_change_translation_m"],
         "X_FC_change_deg": math.degrees(details["X_FC_change_rotation_rad"]),

@@ -160,8 +160,25 @@ def _hangings_lines(report: dict) -> list[str]:
     return lines
 
 
+def handeye_warning(report: dict) -> str | None:
+    """The warning for a hand-eye correction that did not converge (None when it did or did
+    not run)."""
+    if report.get("handeye_converged", True):
+        return None
+    failures = "; ".join(report.get("handeye_diagnosis", {}).get("failures", []))
+    return (
+        f"WARNING: the hand-eye correction did not converge ({failures}); the model may be "
+        "distorted. Calibrate the camera mount (`scanner calibrate`) and reconstruct with "
+        "--calibration; the cloud at the nominal hand-eye transform is kept as "
+        "fused_cloud_nominal.ply."
+    )
+
+
 def write_summary(report: dict, out: Path) -> Path:
     lines = ["# Scan result", ""]
+    warning = handeye_warning(report)
+    if warning:
+        lines += [f"**{warning}**", ""]
     if "views_planned" in report:
         lines += [
             f"- views captured: {report.get('views_captured')} of {report['views_planned']}"

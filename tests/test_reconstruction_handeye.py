@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,12 +12,10 @@ from synthetic_views import OBJECT_CENTER_W, ROBOT_SIDE, cap_directions, make_sc
 from reconstruction.calibration.hand_eye import HAND_EYE_METHODS
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import FilterConfig, RegionOfInterest, filter_view
-from reconstruction.handeye_correction import (
-    HandEyeConfig,
-    correct_handeye,
-    refine_on_clouds,
-    solve_axxb,
-)
+from reconstruction.handeye_basin import CoarseHandEyeConfig, coarse_handeye
+from reconstruction.handeye_correction import HandEyeConfig, correct_handeye, solve_axxb
+from reconstruction.handeye_diagnosis import ConvergenceLimits, diagnose
+from reconstruction.handeye_refine import RefineLevel, refine_on_clouds
 from reconstruction.metrics import handeye_error
 from reconstruction.registration import IcpConfig, build_pyramid, select_pairs
 from reconstruction.transforms import make_pose, twist_to_pose
@@ -87,7 +86,7 @@ def test_joint_refinement_recovers_the_mount_error(bracket_scan):
     X_WF = [v.X_WF for v in scan.views]
     before = handeye_error(scan.X_FC_nominal, scan.X_FC_true)
     assert before["handeye_error_mm"] == pytest.approx(3.0)
-    r = refine_on_clouds(clouds, X_WF, pairs, scan.X_FC_nominal, HandEyeConfig())
+    r = refine_on_clouds(clouds, X_WF, pairs, scan.X_FC_nominal, HandEyeConfig().fine_fit)
     after = handeye_error(r.X_FC, scan.X_FC_true)
     # The issue's target: 0.5 mm and 0.1 deg. What limits it here is the per-view flange error
     # (0.05 mm), not the depth noise (without flange errors it reaches ~0.02 mm).
@@ -117,3 +116,66 @@ def test_bad_settings_are_user_errors():
         HandEyeConfig(axxb_method="magic")
     with pytest.raises(ScannerError):
         HandEyeConfig(refine_levels=())
+
+
+@pytest.fixture(scope="module")
+def rough_mount_scan():
+    """The bracket scan with the camera mounted 40 mm / 10 deg off its nominal pose (a
+    hand-made mount), clouds cleaned at the nominal poses as a scan would."""
+    scan = make_scan(
+        "bracket",
+        directions=cap_directions(16, ROBOT_SIDE, math.radians(35.0)),
+        handeye_error_m=0.04,
+        handeye_error_rad=math.radians(10.0),
+    )
+    roi = RegionOfInterest(center_m=tuple(OBJECT_CENTER_W))
+    clouds = [
+        filter_view(
+            v.index, v.points_C, v.colors, v.X_WF @ scan.X_FC_nominal, FilterConfig(roi=roi)
+        )
+        for v in scan.views
+    ]
+    return scan, clouds
+
+
+def test_coarse_stage_finds_a_rough_mount_and_the_fine_fit_finishes_it(rough_mount_scan):
+    scan, clouds = rough_mount_scan
+    X_WF = [v.X_WF for v in scan.views]
+    before = handeye_error(scan.X_FC_nominal, scan.X_FC_true)
+    assert before["handeye_error_mm"] == pytest.approx(40.0)
+    everything = [list(range(len(clouds)))]
+    coarse = coarse_handeye(clouds, X_WF, everything, scan.X_FC_nominal, CoarseHandEyeConfig())
+    mid = handeye_error(coarse.X_FC, scan.X_FC_true)
+    assert mid["handeye_error_mm"] < 2.0 and mid["handeye_error_deg"] < 0.3
+    pairs = [(i, j) for i in range(len(clouds)) for j in range(i + 1, len(clouds))]
+    fine = refine_on_clouds(clouds, X_WF, pairs, coarse.X_FC, HandEyeConfig().fine_fit)
+    after = handeye_error(fine.X_FC, scan.X_FC_true)
+    assert after["handeye_error_mm"] < 0.5 and after["handeye_error_deg"] < 0.1
+    verdict = diagnose(fine.X_FC, fine, None, coarse.X_FC, ConvergenceLimits())
+    assert verdict.converged, verdict.failures
+
+
+def test_a_fit_stuck_far_from_the_truth_is_diagnosed(rough_mount_scan):
+    """A fit with only narrow gates from 40 mm / 10 deg ends in a wrong X_FC; the diagnosis
+    must say so without the truth."""
+    scan, clouds = rough_mount_scan
+    X_WF = [v.X_WF for v in scan.views]
+    pairs = [(i, j) for i in range(len(clouds)) for j in range(i + 1, len(clouds))]
+    narrow = replace(HandEyeConfig().fine_fit, levels=(RefineLevel(0.005, 10),))
+    stuck = refine_on_clouds(clouds, X_WF, pairs, scan.X_FC_nominal, narrow)
+    error = handeye_error(stuck.X_FC, scan.X_FC_true)
+    assert error["handeye_error_mm"] > 2.0  # the premise: it did not find the mount
+    verdict = diagnose(stuck.X_FC, stuck, None, None, ConvergenceLimits())
+    assert not verdict.converged
+    assert any("points meet" in f or "match RMS" in f for f in verdict.failures)
+
+
+def test_diagnosis_flags_disagreeing_solvers(rough_mount_scan):
+    scan, clouds = rough_mount_scan
+    X_WF = [v.X_WF for v in scan.views]
+    pairs = [(i, j) for i in range(len(clouds)) for j in range(i + 1, len(clouds))]
+    good = refine_on_clouds(clouds, X_WF, pairs, scan.X_FC_true, HandEyeConfig().fine_fit)
+    assert diagnose(good.X_FC, good, scan.X_FC_true, good.X_FC, ConvergenceLimits()).converged
+    off = scan.X_FC_true @ twist_to_pose([0.0, 0.0, math.radians(1.0), 0.005, 0.0, 0.0])
+    verdict = diagnose(good.X_FC, good, off, off, ConvergenceLimits())
+    assert [f.split(" ")[0] for f in verdict.failures] == ["AX", "the"]

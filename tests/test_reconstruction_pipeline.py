@@ -245,3 +245,41 @@ def test_variant_clouds_from_one_run(scan, corrected):
         scan.views, corrected.clouds, [v.X_WC for v in corrected.views], NO_SURFACES
     )
     np.testing.assert_allclose(fused_again.points_W, corrected.fused.points_W, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def rough_scan():
+    """The same bracket scan with the camera mounted 40 mm / 10 deg off its nominal pose."""
+    return make_scan(
+        "bracket",
+        directions=cap_directions(12, ROBOT_SIDE, math.radians(35.0)),
+        image_size=(480, 360),
+        focal_px=495.0,
+        handeye_error_m=0.04,
+        handeye_error_rad=math.radians(10.0),
+    )
+
+
+def test_a_rough_mount_is_corrected_and_reported_converged(rough_scan, tmp_path):
+    result = reconstruct_views(rough_scan.views, rough_scan.X_FC_nominal, NO_SURFACES)
+    after = handeye_error(result.X_FC, rough_scan.X_FC_true)
+    assert after["handeye_error_mm"] < 0.5 and after["handeye_error_deg"] < 0.1
+    assert result.handeye.source == "refined" and result.handeye.coarse is not None
+    assert result.handeye.diagnosis.converged, result.handeye.diagnosis.failures
+    assert result.fused_nominal is None
+    assert summary(result)["handeye_converged"] is True
+
+
+def test_without_the_coarse_stage_the_failure_is_reported_and_the_nominal_model_kept(
+    rough_scan, tmp_path
+):
+    handeye = replace(CONFIG.handeye, coarse=replace(CONFIG.handeye.coarse, enabled=False))
+    config = replace(NO_SURFACES, handeye=handeye)
+    result = reconstruct_views(rough_scan.views, rough_scan.X_FC_nominal, config)
+    after = handeye_error(result.X_FC, rough_scan.X_FC_true)
+    assert after["handeye_error_mm"] > 2.0  # the premise: the old path does not get there
+    assert not result.handeye.diagnosis.converged
+    record = summary(result)
+    assert record["handeye_converged"] is False and record["handeye"]["diagnosis"]["failures"]
+    paths = save_outputs(result, tmp_path)
+    assert paths["fused_cloud_nominal"].stat().st_size > 0
