@@ -32,18 +32,15 @@ def test_bad_pixel_rate_within_the_opencv_reference(scene):
     left, right, truth, scale, num_d, ref_bad, ref_bad_holes = SCENES[scene]
     folder = shared_data(f"real/stereo_middlebury/{scene}")
     gt = cv2.imread(str(folder / truth), cv2.IMREAD_GRAYSCALE).astype(np.float32) / scale
-    # Middlebury's posters and walls are smooth (grey-level std < 1 over 9x9) but at the depth
-    # of their textured borders, so SGBM's propagation there is right: the sky-skirt texture
-    # filter is for featureless backgrounds and is switched off; every other default stays.
-    disparity = compute_disparity(
-        _rgb(folder / left), _rgb(folder / right), 0, num_d, texture_min_std_levels=0.0
-    )
+    # The DEFAULT settings: Middlebury's posters and walls are smooth (grey-level std < 1 over
+    # 9x9) but framed by texture at their own depth, which the low-texture filter must keep.
+    disparity = compute_disparity(_rgb(folder / left), _rgb(folder / right), 0, num_d)
     evaluated = gt > 0
     evaluated[:, :LEFT_BORDER_PX] = False
     valid = evaluated & np.isfinite(disparity)
     wrong = np.abs(disparity - gt) > BAD_PX
     bad = 100 * wrong[valid].mean()
     bad_with_holes = 100 * (wrong | ~np.isfinite(disparity))[evaluated].mean()
-    assert valid.sum() > 0.9 * evaluated.sum()  # measured: 0.98 (tsukuba), 0.96 (venus)
+    assert valid.sum() >= 0.9 * evaluated.sum()
     assert bad <= ref_bad + ALLOWED_EXCESS_PERCENT  # measured: 4.8 %, 1.5 %
     assert bad_with_holes <= ref_bad_holes + ALLOWED_EXCESS_PERCENT  # measured: 6.7 %, 5.2 %

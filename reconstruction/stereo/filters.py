@@ -1,9 +1,16 @@
-"""Masks that reject unreliable disparities: weak texture, disparity jumps, left-right mismatch.
+"""Masks that reject unreliable disparities: unsupported weak texture, disparity jumps,
+left-right mismatch.
 
 SGBM's smoothness term propagates a textured object's disparity into the untextured background
 next to it (measured on the simulator: 26-46 % of background pixels get object-like depths),
-which would grow a "skirt" around every silhouette. These pure functions build boolean masks
-(True = keep) on the rectified left grid; `reconstruction.stereo.matching` applies them.
+which would grow a "skirt" around every silhouette. But smooth real surfaces (a poster, a
+painted wall, Middlebury's Venus planes: grey-level std below 1 over 9x9) get their right
+disparity the same way, from their textured borders. The difference is support: a smooth real
+surface is framed by texture at its own depth, so its disparity continues that of the textured
+pixels on both sides along a row or a column (`enclosed_mask`), and most of the smooth region
+is framed so; a skirt hangs off the object on one side only and belongs to a large background
+region that is mostly unframed (`supported_low_texture`). These pure functions build boolean
+masks (True = keep) on the rectified left grid; `reconstruction.stereo.matching` applies them.
 """
 
 from __future__ import annotations
@@ -12,8 +19,11 @@ import cv2
 import numpy as np
 
 
-def texture_mask(grey: np.ndarray, window_px: int, min_std_levels: float) -> np.ndarray:
-    """Pixels whose every window_px neighbour has a grey-level std above min_std_levels.
+def texture_mask(
+    grey: np.ndarray, window_px: int, min_std_levels: float, erode: bool = True
+) -> np.ndarray:
+    """Pixels whose every window_px neighbour has a grey-level std above min_std_levels
+    (erode=False: whose own window has).
 
     The std is taken over window_px squares. A patch of sky or flat paint has a std of about the
     sensor noise (2 levels in the simulator); SGBM cannot localise a match there, so whatever it
@@ -27,7 +37,63 @@ def texture_mask(grey: np.ndarray, window_px: int, min_std_levels: float) -> np.
     mean = cv2.boxFilter(g, -1, size, borderType=cv2.BORDER_REPLICATE)
     mean_sq = cv2.sqrBoxFilter(g, -1, size, borderType=cv2.BORDER_REPLICATE)
     textured = ((mean_sq - mean * mean) > min_std_levels * min_std_levels).astype(np.uint8)
+    if not erode:
+        return textured.astype(bool)
     return cv2.erode(textured, np.ones(size, np.uint8)).astype(bool)
+
+
+def _framed_along_rows(disparity: np.ndarray, anchors: np.ndarray, tolerance_px: float):
+    """Pixels with an anchor on both sides in their row whose disparity is within
+    tolerance_px of the straight line between the two anchors' disparities (a plane seen in
+    perspective has a disparity linear in the image coordinates)."""
+    height, width = disparity.shape
+    column = np.broadcast_to(np.arange(width), (height, width))
+    left = np.maximum.accumulate(np.where(anchors, column, -1), axis=1)
+    right = np.minimum.accumulate(np.where(anchors, column, width)[:, ::-1], axis=1)[:, ::-1]
+    framed = (left >= 0) & (right < width)
+    row = np.arange(height)[:, None]
+    left, right = np.clip(left, 0, width - 1), np.clip(right, 0, width - 1)
+    d_left, d_right = disparity[row, left], disparity[row, right]
+    t = (column - left) / np.maximum(right - left, 1)
+    with np.errstate(invalid="ignore"):
+        return framed & (np.abs(disparity - (d_left + t * (d_right - d_left))) <= tolerance_px)
+
+
+def enclosed_mask(disparity: np.ndarray, anchors: np.ndarray, tolerance_px: float) -> np.ndarray:
+    """Valid pixels framed by anchors (textured valid pixels) along their row or column with a
+    disparity that continues the anchors' (`_framed_along_rows`)."""
+    rows = _framed_along_rows(disparity, anchors, tolerance_px)
+    columns = _framed_along_rows(disparity.T, anchors.T, tolerance_px).T
+    return np.isfinite(disparity) & (rows | columns)
+
+
+def supported_low_texture(
+    disparity: np.ndarray,
+    grey: np.ndarray,
+    window_px: int,
+    min_std_levels: float,
+    anchor_erode_px: int,
+    tolerance_px: float,
+    min_framed_fraction: float,
+) -> np.ndarray:
+    """`texture_mask` pixels, and the others when framed (`enclosed_mask`) inside a region
+    (4-connected) of such pixels of which at least min_framed_fraction is framed. Anchors are
+    pixels whose own window is textured, eroded by anchor_erode_px: the band just outside a
+    silhouette carries the object's fattened disparity and must not frame the background."""
+    textured = texture_mask(grey, window_px, min_std_levels)
+    low = ~textured
+    valid = np.isfinite(disparity)
+    own = texture_mask(grey, window_px, min_std_levels, erode=False)
+    kernel = np.ones((anchor_erode_px, anchor_erode_px), np.uint8)
+    anchors = cv2.erode(own.astype(np.uint8), kernel).astype(bool) & valid
+    framed = enclosed_mask(disparity, anchors, tolerance_px)
+    region_pixels = (low & valid).astype(np.uint8)
+    count, labels = cv2.connectedComponents(region_pixels, connectivity=4)
+    size = np.bincount(labels.ravel(), minlength=count)
+    framed_size = np.bincount(labels.ravel(), weights=(framed & low).ravel(), minlength=count)
+    supported = framed_size >= min_framed_fraction * np.maximum(size, 1)
+    supported[0] = False  # label 0: the pixels outside every low-texture region
+    return textured | (framed & supported[labels])
 
 
 def jump_mask(disparity: np.ndarray, window_px: int, max_jump_px: float) -> np.ndarray:

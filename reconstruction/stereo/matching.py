@@ -11,7 +11,12 @@ import cv2
 import numpy as np
 
 from reconstruction.errors import ScannerError
-from reconstruction.stereo.filters import jump_mask, left_right_mask, texture_mask
+from reconstruction.stereo.filters import (
+    jump_mask,
+    left_right_mask,
+    supported_low_texture,
+    texture_mask,
+)
 from reconstruction.stereo.params import SGBM_MODES, SGBM_SCALE, StereoParams, stereo_params
 
 
@@ -124,9 +129,23 @@ def disparity_image(
             params,
         )[:, ::-1]
         keep &= left_right_mask(disparity, mirrored, params.lr_check_max_diff_px)
-    if params.texture_min_std_levels > 0:
-        keep &= texture_mask(grey_left, params.texture_window_px, params.texture_min_std_levels)
     disparity[~keep] = np.nan
+    if params.texture_min_std_levels > 0 and params.low_texture == "reject":
+        disparity[
+            ~texture_mask(grey_left, params.texture_window_px, params.texture_min_std_levels)
+        ] = np.nan
+    elif params.texture_min_std_levels > 0:
+        disparity[
+            ~supported_low_texture(
+                disparity,
+                grey_left,
+                params.texture_window_px,
+                params.texture_min_std_levels,
+                params.support_anchor_erode_px,
+                params.support_tolerance_px,
+                params.support_min_fraction,
+            )
+        ] = np.nan
     if params.max_jump_px > 0:
         disparity[~jump_mask(disparity, params.jump_window_px, params.max_jump_px)] = np.nan
     return disparity
