@@ -9,6 +9,7 @@ from pathlib import Path
 from reconstruction.errors import ScannerError
 from scanner.arguments import for_flag, name_arg, path_arg, positive_float
 from scanner.calibrate.arguments import add_calibrate_parser
+from scanner.exchange import add_export_parser, add_import_parser
 
 BUILTIN_HELP = "vase, bracket, pebble"
 
@@ -25,6 +26,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_reconstruct_parser(sub)
     _add_merge_parser(sub)
     _add_preview_parser(sub)
+    add_export_parser(sub)
+    add_import_parser(sub)
     return parser
 
 
@@ -335,6 +338,14 @@ def _run(args: argparse.Namespace) -> int:
         return _reconstruct(args)
     if args.command == "merge":
         return _merge(args)
+    if args.command == "export":
+        from scanner.exchange import run_export
+
+        return run_export(args)
+    if args.command == "import-calibration":
+        from scanner.exchange import run_import
+
+        return run_import(args)
     raise AssertionError(f"unhandled command {args.command}")
 
 

@@ -37,6 +37,19 @@ def require_replaceable(out: Path, marker: str, force: bool, what: str) -> None:
         )
 
 
+def require_new_file(path: Path, flag: str, force: bool) -> None:
+    """Refuse, before any work, a file `path` that exists (unless `force`) or that cannot be
+    written (its folder is probed like `require_creatable`)."""
+    path = Path(path)
+    if path.is_dir():
+        raise ScannerError(f"{flag} {path}: is a folder, expected a file name")
+    if path.exists() and not force:
+        raise ScannerError(
+            f"{flag} {path}: exists already; choose another {flag}, or --force to replace it"
+        )
+    require_creatable(path.parent, flag)
+
+
 def require_creatable(path: Path, flag: str) -> None:
     """Fail before any work when `path` (a folder to write into) cannot be made or written: a
     probe folder is created in it and removed again, with any parents it needed."""

@@ -14,6 +14,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from reconstruction.calibration import exchange
+from reconstruction.calibration.file import Calibration, save_calibration
 from scanner.captures import CaptureStore
 from scanner.cli import build_parser, main
 from scanner.config import ScanConfig
@@ -46,6 +48,16 @@ def places(tmp_path_factory):
     for k in range(3):
         cv2.imwrite(str(foreign / f"pos{k}.png"), np.full((48, 64), 128, np.uint8))
         (foreign / f"pos{k}.txt").write_text("0 0 0 100 200 300\n")
+    save_calibration(Calibration(np.eye(4), stereo, stereo.left), root / "calibration.yaml")
+    save_calibration(Calibration(np.eye(4), None, stereo.left), root / "mono.yaml")
+    for name, write in (
+        ("opencv", exchange.write_opencv_stereo),
+        ("ros", exchange.write_ros_camera_info),
+    ):
+        (root / name).mkdir()
+        write(stereo, root / name)
+    tf = exchange.static_transform(np.eye(4))
+    (root / "he.yaml").write_text(exchange.static_transform_text(tf))
     return root
 
 
@@ -87,6 +99,25 @@ def _names(valid: list[str]) -> st.SearchStrategy[str]:
 def _paths(choices: list[str]) -> st.SearchStrategy[str]:
     return st.sampled_from(choices)
 
+
+BAD_FRAMES = st.one_of(
+    st.sampled_from(["two words", "/tool0", "9lives", "a;b", "tool0/", "a//b", "-x", ""]),
+    st.text(max_size=12).filter(
+        lambda s: not exchange.ROS_FRAME_PATTERN.fullmatch(s) and "\0" not in s
+    ),
+)
+BAD_IMAGE_SIZES = st.sampled_from(
+    ["", "640", "640x", "x480", "0x480", "640x0", "-640x480", "abc", "640x480x3", "1e3x480"]
+)
+BAD_LENGTH_UNITS = st.one_of(
+    st.sampled_from(["", "km", "metres", "0", "-1", "nan", "inf", "1e400", "m m"]),
+    st.floats(max_value=0, allow_nan=False).map(repr),
+)
+EXPORT = ["export", "{root}/calibration.yaml"]
+EXPORT_TF = [*EXPORT, "--format", "ros-tf", "--out", "{root}/exported"]
+IMPORT = ["import-calibration", "--format", "opencv", "{root}/opencv"]
+IMPORT_TO = [*IMPORT, "--out", "{root}/imported.yaml"]
+IMPORT_ROS_TO = ["import-calibration", "--format", "ros", "{root}/ros", "--out", "{root}/i.yaml"]
 
 # (command and the context it needs, option, bad values). Every option of every subcommand is
 # listed; test_every_option_is_covered checks that against the parser.
@@ -153,12 +184,35 @@ CASES = [
     (["preview"], "--object", _names(["vase", "bracket", "pebble"])),
     (["preview"], "--out", _paths(OUT_PATHS)),
     (["preview"], "--seed", _ints(0, 2**32 - 1)),
+    (["export", "--format", "opencv", "--out", "{root}/exported"], "", _paths(PATHS)),
+    (["export", "--format", "ros", "--out", "{root}/exported"], "", st.just("{root}/mono.yaml")),
+    ([*EXPORT, "--out", "{root}/exported"], "--format", _names(["opencv", "ros", "ros-tf"])),
+    ([*EXPORT, "--format", "opencv"], "--out", _paths([*OUT_PATHS, "{root}/opencv"])),
+    ([*EXPORT, "--format", "ros", "--out", "{root}/ros"], "--force=1", None),
+    (EXPORT_TF, "--parent-frame", BAD_FRAMES),
+    (EXPORT_TF, "--child-frame", BAD_FRAMES),
+    (EXPORT_TF, "--child-frame", st.just("tool0")),
+    ([*EXPORT, "--format", "opencv", "--out", "{root}/e"], "--parent-frame", st.just("tool0")),
+    ([*EXPORT, "--format", "ros", "--out", "{root}/e"], "--child-frame", st.just("camera")),
+    (["import-calibration", "--format", "opencv", "--out", "{root}/i.yaml"], "", _paths(PATHS)),
+    (["import-calibration", "--format", "ros", "--out", "{root}/i.yaml"], "", _paths(PATHS)),
+    (["import-calibration", "{root}/opencv", "--out", "{root}/i.yaml"], "--format", _names([])),
+    (IMPORT, "--out", _paths([*OUT_PATHS, "{root}/empty", "{root}/calibration.yaml"])),
+    (IMPORT_TO, "--force=1", None),
+    (IMPORT_TO, "--hand-eye", _paths([*PATHS, "{root}/calibration.yaml"])),
+    (IMPORT_TO, "--image-size", BAD_IMAGE_SIZES),
+    (IMPORT_TO, "--image-size", st.just("640x480")),
+    (IMPORT_ROS_TO, "--image-size", st.just("1280x960")),
+    (IMPORT_TO, "--length-unit", BAD_LENGTH_UNITS),
+    (IMPORT_TO, "--length-unit", st.just("mm")),
+    (IMPORT_ROS_TO, "--length-unit", st.just("m")),
 ]
 
 
 @pytest.fixture
 def no_work(monkeypatch):
     import planners.planner
+    import reconstruction.calibration.file
     import scanner.calibrate.eye_to_hand
     import scanner.calibrate.offline
     import scanner.preview
@@ -169,6 +223,10 @@ def no_work(monkeypatch):
     monkeypatch.setattr(scanner.calibrate.offline, "solve", _tripwire)
     monkeypatch.setattr(scanner.calibrate.eye_to_hand, "grid_points", _tripwire)
     monkeypatch.setattr(scanner.preview, "first_reachable_view", _tripwire)
+    # Export and import: nothing is written.
+    for name in ("write_opencv_stereo", "write_ros_camera_info", "write_static_transform"):
+        monkeypatch.setattr(exchange, name, _tripwire)
+    monkeypatch.setattr(reconstruction.calibration.file, "save_calibration", _tripwire)
 
 
 def _check(argv: list[str], option: str, value: str | None, capsys) -> None:
@@ -254,6 +312,11 @@ def test_unreadable_config_is_a_one_line_error(tmp_path, capsys):
         ["reconstruct", "{root}/scan"],
         ["scan", "--out", "{root}/fresh", "--views", "3"],
         ["merge", "{root}/scan", "{root}/scan2", "--out", "{root}/merged"],
+        ["export", "{root}/calibration.yaml", "--format", "ros-tf", "--out", "{root}/tf"],
+        ["export", "{root}/calibration.yaml", "--format", "opencv", "--out", "{root}/cv"],
+        [*IMPORT, "--out", "{root}/imported.yaml", "--hand-eye", "{root}/he.yaml"],
+        [*IMPORT, "--out", "{root}/imported.yaml", "--image-size", "1280x960"],
+        ["import-calibration", "--format", "ros", "{root}/ros", "--out", "{root}/imported.yaml"],
     ],
 )
 def test_valid_values_reach_the_tripwire(argv, places, no_work):

@@ -10,4 +10,5 @@ refine        joint refinement of X_FC and X_WB on every board corner (the board
 eye_in_hand   the whole hand-eye calibration: seed, refine, reject outlier poses
 eye_to_hand   a static stereo camera against the robot (blinking marker, rigid fit)
 file          the calibration file that scan and reconstruct read
+exchange      the calibration as OpenCV stereo_calib and ROS camera_info / tf files
 """
