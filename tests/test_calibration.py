@@ -245,6 +245,89 @@ def test_pose_file_errors_name_the_file_line_and_expectation(tmp_path):
         read_pose_file(bad_matrix, POSE_PRESETS["matrix_m"])
 
 
+# One pose list (x y z in mm, rotation vector in rad) as people and spreadsheets write it.
+POSE_ROWS = [[100.0, -20.5, 300.0, 0.1, -0.2, 0.3], [110.0, -21.0, 290.0, 0.0, 0.0, 1.5]]
+POSE_LIST_TEXTS = {
+    "spaces": "100 -20.5 300 0.1 -0.2 0.3\n110 -21 290 0 0 1.5\n",
+    "trailing blank lines": "100 -20.5 300 0.1 -0.2 0.3\n110 -21 290 0 0 1.5\n\n  \n\t\n",
+    "comments": (
+        "# poses of the calibration run\n"
+        "100 -20.5 300 0.1 -0.2 0.3  # first view\n"
+        "   # robot paused here\n"
+        "110 -21 290 0 0 1.5#second\n"
+    ),
+    "commas": "100,-20.5,300,0.1,-0.2,0.3\n110, -21, 290, 0, 0, 1.5\n",
+    "semicolons": "100;-20.5;300;0.1;-0.2;0.3\n110 ; -21 ; 290 ; 0 ; 0 ; 1.5\n",
+    "tabs": "100\t-20.5\t300\t0.1\t-0.2\t0.3\n110\t-21\t290\t0\t0\t1.5\n",
+    "csv header": "x,y,z,rx,ry,rz\n100,-20.5,300,0.1,-0.2,0.3\n110,-21,290,0,0,1.5\n",
+    "header with units after a comment": (
+        "# exported by the robot controller\n"
+        "X [mm]; Y [mm]; Z [mm]; Rx [rad]; Ry [rad]; Rz [rad]\n"
+        "100;-20.5;300;0.1;-0.2;0.3\n110;-21;290;0;0;1.5\n"
+    ),
+    "quoted spreadsheet cells": '"x","y","z","rx","ry","rz"\n'
+    '"100","-20.5","300","0.1","-0.2","0.3"\n"110","-21","290","0","0","1.5"\n',
+    "windows line endings": "100 -20.5 300 0.1 -0.2 0.3\r\n110 -21 290 0 0 1.5\r\n\r\n",
+}
+
+
+@pytest.mark.parametrize("text", POSE_LIST_TEXTS.values(), ids=POSE_LIST_TEXTS.keys())
+def test_pose_lists_as_people_write_them(tmp_path, text):
+    fmt = pose_format("ur", length_unit="mm")
+    path = tmp_path / "poses.csv"
+    path.write_bytes(text.encode())
+    expected = [pose_from_numbers(np.array(row), fmt, "t") for row in POSE_ROWS]
+    poses = read_pose_list(path, fmt)
+    assert len(poses) == len(expected)
+    for X, X_expected in zip(poses, expected):
+        np.testing.assert_allclose(X, X_expected, atol=1e-12)
+
+
+def test_a_spreadsheet_byte_order_mark_and_a_header_in_a_single_pose_file(tmp_path):
+    fmt = pose_format("ur", length_unit="mm")
+    path = tmp_path / "pose0.txt"
+    path.write_bytes("\ufeffx;y;z;rx;ry;rz\r\n100;-20.5;300;0.1;-0.2;0.3\r\n".encode())
+    expected = pose_from_numbers(np.array(POSE_ROWS[0]), fmt, "t")
+    np.testing.assert_allclose(read_pose_file(path, fmt), expected, atol=1e-12)
+
+
+def test_bad_pose_rows_name_the_file_and_line_after_headers_and_comments(tmp_path):
+    fmt = pose_format("ur")
+    path = tmp_path / "poses.csv"
+    # Line 4 is the bad one: the header, a comment and a blank line come first.
+    path.write_text("x,y,z,rx,ry,rz\n# run 1\n\n0.1,0.2,0.3,0,0,O.1\n")
+    with pytest.raises(ScannerError, match=r"poses.csv line 4: not a list of numbers"):
+        read_pose_list(path, fmt)
+    # Only the first line can be a header: text further down is an error, not skipped.
+    path.write_text("x,y,z,rx,ry,rz\n0.1,0.2,0.3,0,0,0.1\nend of list\n")
+    with pytest.raises(ScannerError, match=r"poses.csv line 3: not a list of numbers"):
+        read_pose_list(path, fmt)
+    # A first line mixing numbers and text is a bad row, not a header.
+    path.write_text("pose 1: 0.1 0.2 0.3 0 0 0.1\n")
+    with pytest.raises(ScannerError, match=r"poses.csv line 1: not a list of numbers"):
+        read_pose_list(path, fmt)
+    path.write_text("0.1;0.2;0.3;0;0;0.1\r\n0.1;0.2;0.3;0;0\r\n")
+    with pytest.raises(ScannerError, match=r"poses.csv line 2: 5 columns"):
+        read_pose_list(path, fmt)
+    path.write_bytes(b"\xff\xfe0\x00.\x001\x00")  # UTF-16, as some editors save "Unicode"
+    with pytest.raises(ScannerError, match=r"poses.csv: not UTF-8 text"):
+        read_pose_list(path, fmt)
+
+
+def test_a_pose_count_that_does_not_match_the_images_names_both(tmp_path):
+    from scanner.calibrate.offline import OfflineOptions, calibrate_directory
+
+    folder = tmp_path / "data"
+    folder.mkdir()
+    for k in range(2):
+        cv2.imwrite(str(folder / f"view{k}.png"), np.full((48, 64), 255, np.uint8))
+    poses = tmp_path / "poses.csv"
+    poses.write_text("x,y,z,rx,ry,rz\n" + "0.1,0.2,0.3,0,0,0.1\n" * 3 + "\n\n")
+    options = OfflineOptions(BoardSpec("chessboard", 10, 7, 0.02), pose_format("ur"), poses)
+    with pytest.raises(ScannerError, match=r"poses.csv: 3 poses for 2 images"):
+        calibrate_directory(folder, options, out_dir=tmp_path / "out")
+
+
 def test_open3dv_convention_matches_its_readme():
     # README: R_base_gripper = Rotation.from_euler('xyz', [Rx, Ry, Rz], degrees=True).
     X = pose_from_numbers(

@@ -5,7 +5,9 @@ Three kinds, chosen by name (`BOARD_KINDS`):
   corner has an id, so partly visible boards still give correct correspondences; the default.
 - "chessboard": plain squares. Its orientation is unique only when the square counts differ in
   parity (a 180-degree turn of the board maps a black square onto a white one); the detector
-  uses that to put the corners in a fixed order, and warns on symmetric boards.
+  then numbers the corners from the black outer top-left square. On symmetric boards it numbers
+  them from the grid corner nearest the image's top-left (see `_canonical_order`). Found by
+  findChessboardCornersSB, else the classic findChessboardCorners (see `_CHESSBOARD_STAGES`).
 - "circles_asymmetric": OpenCV's asymmetric circle grid (e.g. the Open3DV data set: 7 x 11,
   20 mm). `inverted` boards (white dots on black) are detected on the inverted image.
 
@@ -25,6 +27,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from reconstruction.errors import ScannerError
 
@@ -137,11 +140,12 @@ def _subpixel(gray: np.ndarray, pixels: np.ndarray, window_px: int) -> np.ndarra
 
 
 def _window_px(pixels: np.ndarray, cols: int) -> int:
-    """Half window of cornerSubPix: a third of the smallest corner spacing, at least 3 px (a
-    window reaching the next corner pulls the estimate towards it)."""
+    """Half window of cornerSubPix: a third of the smallest corner spacing, 1 to 15 px (a window
+    reaching the next corner pulls the estimate towards it: on a rendered board of 4 px squares,
+    which the classic detector finds, a 3 px half window merges neighbouring corners)."""
     grid = pixels.reshape(-1, cols, 2)
     d = np.linalg.norm(np.diff(grid, axis=1), axis=2).min()
-    return int(max(3, min(15, d / 3)))
+    return int(max(1, min(15, d / 3)))
 
 
 def _detect_charuco(spec: BoardSpec, gray: np.ndarray) -> Detection | None:
@@ -152,17 +156,17 @@ def _detect_charuco(spec: BoardSpec, gray: np.ndarray) -> Detection | None:
     return Detection(ids.ravel().astype(int), corners.reshape(-1, 2).astype(float))
 
 
-def _square_is_dark(gray: np.ndarray, H_IB: np.ndarray, p_B: tuple[float, float]) -> bool:
-    """Is the board point p_B (metres, z = 0) darker than the board's mean, seen through H_IB?"""
-    p = H_IB @ np.array([p_B[0], p_B[1], 1.0])
-    u, v = int(round(p[0] / p[2])), int(round(p[1] / p[2]))
-    h, w = gray.shape
-    if not (0 <= u < w and 0 <= v < h):
-        return True
-    return float(gray[v, u]) < float(gray.mean())
+# Classic findChessboardCorners: the adaptive threshold and normalisation find boards under uneven
+# light. FAST_CHECK is left off: on small and blurred rendered boards it rejected views that the
+# full search finds, and it only saves time on images without a board.
+_CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+# Images longer than this are also searched at this size: the classic detector misses large,
+# blurred squares in multi-megapixel images that it finds shrunk (a 1920x1080 render with 130 px
+# squares blurred by 10 px).
+_CLASSIC_DOWNSCALED_PX = 1024
 
 
-def _find_chessboard(gray: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None:
+def _sb_chessboard(gray: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None:
     """findChessboardCornersSB with CALIB_CB_ACCURACY (unbiased to ~0.02 px on our renders, where
     cornerSubPix is biased by up to 0.2 px on edges aligned with pixel rows), run on a crop
     around the board found at half resolution: the accurate mode costs ~0.7 s on a full
@@ -187,20 +191,94 @@ def _find_chessboard(gray: np.ndarray, pattern: tuple[int, int]) -> np.ndarray |
     return corners.reshape(-1, 2).astype(float) if found else None
 
 
+def _classic_chessboard(gray: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None:
+    """Classic findChessboardCorners (quads of a thresholded image), refined by cornerSubPix. It
+    finds boards SB misses: all 26 of OpenCV's stereo sample images, where SB with default
+    flags finds 22 and the SB stage above 25."""
+    found, corners = cv2.findChessboardCorners(gray, pattern, flags=_CLASSIC_FLAGS)
+    if not found:
+        return None
+    pixels = corners.reshape(-1, 2).astype(float)
+    return _subpixel(gray, pixels, _window_px(pixels, pattern[0]))
+
+
+def _downscaled_classic_chessboard(gray: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None:
+    """The classic detector on the image shrunk to _CLASSIC_DOWNSCALED_PX, refined by cornerSubPix
+    at full resolution; None for images that are not larger than that."""
+    scale = _CLASSIC_DOWNSCALED_PX / max(gray.shape)
+    if scale >= 1:
+        return None
+    small = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    found, corners = cv2.findChessboardCorners(small, pattern, flags=_CLASSIC_FLAGS)
+    if not found:
+        return None
+    # A pixel centre c of the small image lies at (c + 0.5) / scale - 0.5 in the full one.
+    pixels = (corners.reshape(-1, 2).astype(float) + 0.5) / scale - 0.5
+    return _subpixel(gray, pixels, _window_px(pixels, pattern[0]))
+
+
+# Most accurate first; each later stage runs only when the earlier ones found nothing.
+_CHESSBOARD_STAGES: dict[str, Callable[[np.ndarray, tuple[int, int]], np.ndarray | None]] = {
+    "sb_accurate": _sb_chessboard,
+    "classic": _classic_chessboard,
+    "classic_downscaled": _downscaled_classic_chessboard,
+}
+
+
+def _find_chessboard(gray: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None:
+    for stage in _CHESSBOARD_STAGES.values():
+        pixels = stage(gray, pattern)
+        if pixels is not None:
+            return pixels
+    return None
+
+
+def _dark_squares_first(spec: BoardSpec, gray: np.ndarray, pixels: np.ndarray) -> bool:
+    """Do the squares that are black on the board (square (i, j) with i + j even: the outer
+    top-left one is black, as in OpenCV's pattern) look darker than the white ones, with the
+    corners in this order?
+
+    Sampled 0.3 squares diagonally off every inner corner rather than at square centres: printed
+    boards often cut the outer squares short (OpenCV's stereo sample images show them at about
+    0.4 of a square), and a point that far from a corner stays off its blurred edges."""
+    s = spec.spacing_m
+    p_B = spec.object_points()[:, :2]
+    H_IB, _ = cv2.findHomography(p_B, pixels)
+    offsets = 0.3 * s * np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]])
+    q_B = (p_B[:, None, :] + offsets[None]).reshape(-1, 2)
+    black = np.floor(q_B / s).astype(int).sum(axis=1) % 2 == 0
+    uv = np.rint(cv2.perspectiveTransform(q_B[None], H_IB)[0]).astype(int)
+    h, w = gray.shape
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    values = np.full(len(uv), np.nan)
+    values[inside] = gray[uv[inside, 1], uv[inside, 0]]
+    return bool(np.nanmedian(values[black]) < np.nanmedian(values[~black]))
+
+
+def _canonical_order(spec: BoardSpec, gray: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """The corners in the order of BoardSpec.object_points(), whichever end the detector began.
+
+    A board whose colours fix its orientation is put with its black outer top-left square first.
+    Otherwise (same parity of cols and rows: a 180-degree turn, and on a square board a 90-degree
+    one, maps the pattern onto itself) the first corner is the grid corner nearest the image's
+    top-left, by the smallest u + v: every view of a set in which the board is turned by less
+    than about 90 degrees then numbers the same physical corners alike."""
+    grid = pixels.reshape(spec.rows - 1, spec.cols - 1, 2)
+    if spec.orientation_unique:
+        ordered = grid if _dark_squares_first(spec, gray, pixels) else grid[::-1, ::-1]
+        return ordered.reshape(-1, 2).copy()
+    # np.rot90 turns the index grid (a proper rotation), never mirrors it.
+    turns = (0, 1, 2, 3) if spec.cols == spec.rows else (0, 2)
+    candidates = [np.rot90(grid, k) for k in turns]
+    best = min(candidates, key=lambda g: float(g[0, 0].sum()))
+    return best.reshape(-1, 2).copy()
+
+
 def _detect_chessboard(spec: BoardSpec, gray: np.ndarray) -> Detection | None:
-    pattern = (spec.cols - 1, spec.rows - 1)
-    pixels = _find_chessboard(gray, pattern)
+    pixels = _find_chessboard(gray, (spec.cols - 1, spec.rows - 1))
     if pixels is None:
         return None
-    if spec.orientation_unique:
-        # The outer top-left square is black (OpenCV's pattern); seen from the other end the
-        # square beyond the first corner is white, so reverse the order.
-        p_B = spec.object_points()[:, :2]
-        H_IB, _ = cv2.findHomography(p_B, pixels)
-        s = spec.spacing_m
-        if not _square_is_dark(gray, H_IB, (0.5 * s, 0.5 * s)):
-            pixels = pixels[::-1].copy()
-    return Detection(np.arange(len(pixels)), pixels)
+    return Detection(np.arange(len(pixels)), _canonical_order(spec, gray, pixels))
 
 
 def _detect_circles(spec: BoardSpec, gray: np.ndarray) -> Detection | None:
@@ -227,6 +305,180 @@ def detect_board(spec: BoardSpec, image: np.ndarray, min_points: int = 6) -> Det
     if detection is None or len(detection) < min_points:
         return None
     return detection
+
+
+@dataclass(frozen=True)
+class DetectionLimits:
+    """When a board that was not found is blamed on the image rather than reported as absent.
+
+    min_contrast_grey: spread of grey levels (2nd to 98th percentile in the 64 px tile where it is
+        largest, 8-bit) below which the image is called featureless (lens cap, exposure); sensor
+        noise of 2 grey levels spreads ~8, OpenCV's stereo sample images ~200.
+    min_laplacian_variance: sharpness, the variance of the Laplacian (Pech-Pacheco et al. 2000,
+        "Diatom autofocusing in brightfield microscopy") in the sharpest 64 px tile, in grey
+        levels squared. OpenCV's stereo sample images score ~3600-4000, ~50 after a Gaussian blur
+        of 2 px, ~15 of 3 px, ~7 of 4 px (their boards are still found); a render of 20 px
+        squares was found down to ~4 (8 px blur) and lost at ~2.4 (10 px). Sensor noise of
+        sigma grey levels adds 20 sigma^2 (the kernel's squared weights), so noisy blurred
+        images pass this test and get a later reason.
+    min_corner_spacing_px: corner spacing below which a board is called too small: sharp
+        rendered boards were found in every view from 8 px squares on, smaller ones in some.
+    """
+
+    def __post_init__(self) -> None:
+        for name in ("min_contrast_grey", "min_laplacian_variance", "min_corner_spacing_px"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ScannerError(f"detection limits: {name} must be >= 0, got {value}")
+
+    min_contrast_grey: float = 20.0
+    min_laplacian_variance: float = 10.0
+    min_corner_spacing_px: float = 8.0
+
+
+# The board may fill a small part of the image: contrast and sharpness are those of the best
+# tile, not of the whole image, whose plain background would dilute the board's edges.
+_TILE_PX = 64
+# Enlarging images bigger than this (pixels) to look for a tiny board costs seconds.
+_ENLARGE_MAX_PIXELS = 1_300_000
+
+
+def _laplacian_variance(gray: np.ndarray) -> float:
+    """Sharpness of a grey image: the largest variance of the Laplacian over 64 px tiles."""
+    lap = cv2.Laplacian(gray.astype(np.float32), cv2.CV_32F)
+    h, w = gray.shape
+    tiles = (max(1, w // _TILE_PX), max(1, h // _TILE_PX))
+    return float(cv2.resize(lap * lap, tiles, interpolation=cv2.INTER_AREA).max())
+
+
+def _grey_spread(gray: np.ndarray) -> tuple[float, float]:
+    """The 2nd and 98th percentile of the grey levels in the 64 px tile where they differ most
+    (per tile, so that a small board on a plain background still counts; the percentiles ignore
+    noise and hot pixels)."""
+    t = min(_TILE_PX, *gray.shape)
+    h, w = (gray.shape[0] // t) * t, (gray.shape[1] // t) * t
+    tiles = gray[:h, :w].reshape(h // t, t, w // t, t).transpose(0, 2, 1, 3).reshape(-1, t * t)
+    lo, hi = np.percentile(tiles, (2, 98), axis=1)
+    k = int(np.argmax(hi - lo))
+    return float(lo[k]), float(hi[k])
+
+
+def _corner_spacing_px(pixels: np.ndarray) -> float:
+    """Median distance from each point to its nearest neighbour (a grid's spacing)."""
+    distances, _ = cKDTree(pixels).query(pixels, k=2)
+    return float(np.median(distances[:, 1]))
+
+
+@dataclass(frozen=True, eq=False)
+class _PartialGrid:
+    """The largest chessboard corner grid in an image, whatever the board's size."""
+
+    size: tuple[int, int]  # corners across and down, in the board's orientation if it fits
+    spacing_px: float
+    border_px: float  # from the outermost corner to the nearest image edge
+
+
+def _partial_grid(spec: BoardSpec, gray: np.ndarray) -> _PartialGrid | None:
+    """SB with CALIB_CB_LARGER from a 3x3 seed returns the largest corner grid it finds, and its
+    size in the meta output (one entry per corner). Grids of fewer than a third of the board's
+    corners are ignored: SB finds 3x3 to 5x3 grids in plain photographs (Middlebury's stereo
+    images)."""
+    flags = cv2.CALIB_CB_LARGER | cv2.CALIB_CB_EXHAUSTIVE
+    found, corners, meta = cv2.findChessboardCornersSBWithMeta(gray, (3, 3), flags)
+    if not found or corners is None or meta is None or meta.size < spec.point_count / 3:
+        return None
+    pixels = corners.reshape(-1, 2).astype(float)
+    r, c = meta.shape[:2]
+    want = (spec.cols - 1, spec.rows - 1)
+    size = min(((c, r), (r, c)), key=lambda s: abs(s[0] - want[0]) + abs(s[1] - want[1]))
+    h, w = gray.shape
+    border = float(
+        min(pixels[:, 0].min(), pixels[:, 1].min(), w - pixels[:, 0].max(), h - pixels[:, 1].max())
+    )
+    return _PartialGrid(size, _corner_spacing_px(pixels), border)
+
+
+def _too_small(spec: BoardSpec, gray: np.ndarray, min_points: int) -> float | None:
+    """Corner spacing (px of this image) of a board found only in the image enlarged 2x."""
+    if gray.size > _ENLARGE_MAX_PIXELS:
+        return None
+    big = cv2.resize(gray, None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC)
+    detection = _DETECTORS[spec.kind](spec, big)
+    if detection is None or len(detection) < min_points:
+        return None
+    return _corner_spacing_px(detection.pixels) / 2
+
+
+def _why_not_found(
+    spec: BoardSpec,
+    gray: np.ndarray,
+    detection: Detection | None,
+    min_points: int,
+    limits: DetectionLimits,
+) -> str:
+    """Why no usable board was found, most specific cause first (see detect_board_or_reason)."""
+    if spec.point_count < min_points:
+        return f"the board has {spec.point_count} points, fewer than the {min_points} needed"
+    lo, hi = _grey_spread(gray)
+    if hi - lo < limits.min_contrast_grey:
+        return (
+            f"no contrast (grey levels {lo:.0f} to {hi:.0f}, need a spread >= "
+            f"{limits.min_contrast_grey:g}): lens covered or wrong exposure"
+        )
+    if detection is not None:
+        return (
+            f"not enough corners: found {len(detection)} of the board's {spec.point_count}, "
+            f"need {min_points} (board partly outside the image or hidden?)"
+        )
+    want = (spec.cols - 1, spec.rows - 1)
+    grid = _partial_grid(spec, gray) if spec.kind == "chessboard" else None
+    found = "" if grid is None else f"found a grid of {grid.size[0]}x{grid.size[1]} corners"
+    expected = f"the board has {want[0]}x{want[1]} inner corners"
+    if grid is not None:
+        if grid.spacing_px < limits.min_corner_spacing_px:
+            return (
+                f"board too small ({grid.spacing_px:.1f} px between corners, found reliably from "
+                f"{limits.min_corner_spacing_px:g}): move closer or use larger squares"
+            )
+        if grid.size != want and grid.size[0] >= want[0] and grid.size[1] >= want[1]:
+            return (
+                f"{found}, {expected}: check the board kind and size (inner corners = squares - 1)"
+            )
+        if grid.size != want and grid.border_px < 2 * grid.spacing_px:
+            return f"board partly outside the image: {found}, {expected}"
+    sharpness = _laplacian_variance(gray)
+    if sharpness < limits.min_laplacian_variance:
+        return (
+            f"blurred (variance of Laplacian {sharpness:.1f}, need >= "
+            f"{limits.min_laplacian_variance:g})"
+        )
+    if grid is not None and grid.size != want:
+        return f"not enough corners: {found}, {expected} (board partly hidden or in glare?)"
+    spacing = _too_small(spec, gray, min_points)
+    if spacing is not None:
+        return (
+            f"board too small ({spacing:.1f} px between corners, found reliably from "
+            f"{limits.min_corner_spacing_px:g}): move closer or use larger squares"
+        )
+    if grid is not None:
+        return f"{found} but could not locate its corners (uneven light or glare?)"
+    return "no board pattern found"
+
+
+def detect_board_or_reason(
+    spec: BoardSpec,
+    image: np.ndarray,
+    min_points: int = 6,
+    limits: DetectionLimits = DetectionLimits(),
+) -> Detection | str:
+    """Board points in an RGB or grey image, or a short reason why none are usable, e.g.
+    "blurred (variance of Laplacian 2.4, need >= 10)". Finding the reason costs more than the
+    detection (another corner search, for a tiny board one on the image enlarged 2x)."""
+    gray = _gray(image)
+    detection = _DETECTORS[spec.kind](spec, gray)
+    if detection is not None and len(detection) >= min_points:
+        return detection
+    return _why_not_found(spec, gray, detection, min_points, limits)
 
 
 @dataclass(frozen=True, eq=False)

@@ -146,43 +146,66 @@ def pose_from_numbers(values: np.ndarray, fmt: PoseFormat, where: str) -> np.nda
     return inverse_pose(X) if fmt.inverse else X
 
 
-def _numbers(text: str, where: str) -> list[list[float]]:
-    """Numbers per non-empty line (comments after '#'; separators: spaces, commas, semicolons)."""
-    rows = []
+_SEPARATORS = re.compile(r"[\s,;]+")
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _numbers(text: str, where: str) -> list[tuple[int, list[float]]]:
+    """(line number, numbers) of every line holding numbers.
+
+    Written by hand or exported from a spreadsheet: '#' starts a comment (a whole line or the end
+    of one), blank lines are skipped, numbers are separated by spaces, tabs, commas or
+    semicolons and may be quoted ("1.5"), and the first line is skipped as a CSV header when it has
+    letters and no number ("x,y,z,rx,ry,rz"). Decimal commas are not supported (a comma
+    separates numbers)."""
+    rows: list[tuple[int, list[float]]] = []
+    first = True
     for n, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
+        tokens = [t.strip("\"'") for t in _SEPARATORS.split(line) if t]
+        header = first and any(c.isalpha() for c in line) and not any(map(_is_number, tokens))
+        first = False
+        if header:
+            continue
         try:
-            rows.append([float(t) for t in re.split(r"[\s,;]+", line) if t])
+            rows.append((n, [float(t) for t in tokens]))
         except ValueError:
             raise ScannerError(f"{where} line {n}: not a list of numbers: '{line}'") from None
     return rows
 
 
+def _read_text(path: Path) -> str:
+    """The file's text; a UTF-8 byte order mark (spreadsheets on Windows write one) is dropped,
+    and Windows or old Mac line endings read as plain ones."""
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except OSError as e:
+        raise ScannerError(f"{path}: cannot read pose file ({e.strerror})") from None
+    except UnicodeDecodeError:
+        raise ScannerError(f"{path}: not UTF-8 text; save it as plain text (UTF-8)") from None
+
+
 def read_pose_file(path: Path, fmt: PoseFormat) -> np.ndarray:
     """One pose in a file (numbers on one or several lines, e.g. 6 lines of one number)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise ScannerError(f"{path}: cannot read pose file ({e.strerror})") from None
-    values = [x for row in _numbers(text, str(path)) for x in row]
+    values = [x for _, row in _numbers(_read_text(path), str(path)) for x in row]
     return pose_from_numbers(np.array(values), fmt, str(path))
 
 
 def read_pose_list(path: Path, fmt: PoseFormat) -> list[np.ndarray]:
     """Many poses, one per line (each line has the layout's column count)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise ScannerError(f"{path}: cannot read pose file ({e.strerror})") from None
     poses = []
-    line_numbers = [
-        n for n, line in enumerate(text.splitlines(), 1) if line.split("#", 1)[0].strip()
-    ]
-    for n, row in zip(line_numbers, _numbers(text, str(path))):
+    for n, row in _numbers(_read_text(path), str(path)):
         if len(row) not in fmt.counts:
             expected = " or ".join(str(c) for c in fmt.counts)
             raise ScannerError(
