@@ -140,8 +140,9 @@ def test_board_not_found_is_skipped_and_reported(tmp_path):
     run = calibrate_directory(folder, options, out_dir=tmp_path / "out")
     assert run.report["poses_board_not_found"] == ["pos5"]
     assert run.report["poses_used"] == 7
+    assert run.report["board_not_found_reasons"]["pos5"].startswith("no contrast")
     text = (tmp_path / "out" / "results" / "report.txt").read_text()
-    assert "board not found in: pos5" in text
+    assert "board not found in: pos5 (no contrast" in text
 
 
 def test_too_few_poses_is_a_clear_error(tmp_path):

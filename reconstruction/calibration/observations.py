@@ -15,12 +15,14 @@ from reconstruction.transforms import check_pose, pose_from_rvec_tvec
 @dataclass(frozen=True, eq=False)
 class PoseObservation:
     """One robot pose: its name (file or capture), the flange pose X_WF the robot reported, and
-    the board points each camera found (None: board not found)."""
+    the board points each camera found (None: board not found), and why the left camera's
+    board was not found (empty when it was, or when the reason is unknown)."""
 
     name: str
     X_WF: np.ndarray
     left: Detection | None
     right: Detection | None = None
+    not_found: str = ""
 
     def __post_init__(self) -> None:
         X = check_pose(self.X_WF, f"{self.name}: X_WF").copy()

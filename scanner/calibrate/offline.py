@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from reconstruction.calibration.boards import BoardSpec, detect_board
+from reconstruction.calibration.boards import BoardSpec, Detection, detect_board_or_reason
 from reconstruction.calibration.file import load_calibration
 from reconstruction.calibration.observations import PoseObservation
 from reconstruction.calibration.plausibility import implausible_figures, rank_conventions
@@ -49,8 +49,12 @@ def _read_gray(path: Path) -> np.ndarray:
     return image
 
 
-def _detect(board: BoardSpec, image: np.ndarray, settings: CalibrationSettings):
-    return detect_board(board, image, settings.min_points_per_view)
+def _detect(
+    board: BoardSpec, image: np.ndarray, settings: CalibrationSettings
+) -> tuple[Detection | None, str]:
+    """The detection, or None and the reason it failed."""
+    found = detect_board_or_reason(board, image, settings.min_points_per_view)
+    return (None, found) if isinstance(found, str) else (found, "")
 
 
 @dataclass(frozen=True)
@@ -155,9 +159,9 @@ def _foreign_observations(
         right = None
         if stereo:
             right_path = root / "right" / image.name
-            right = _detect(options.board, _read_gray(right_path), settings)
-        left = _detect(options.board, gray, settings)
-        observations.append(PoseObservation(image.stem, X_WF, left, right))
+            right, _ = _detect(options.board, _read_gray(right_path), settings)
+        left, why = _detect(options.board, gray, settings)
+        observations.append(PoseObservation(image.stem, X_WF, left, right, why))
     return observations, size
 
 
@@ -171,14 +175,9 @@ def _store_observations(
     for index in indices:
         capture = store.read_capture(index)
         size = (capture.left.shape[1], capture.left.shape[0])
-        observations.append(
-            PoseObservation(
-                f"{index:04d}",
-                capture.X_WF,
-                _detect(board, capture.left, settings),
-                _detect(board, capture.right, settings),
-            )
-        )
+        left, why = _detect(board, capture.left, settings)
+        right, _ = _detect(board, capture.right, settings)
+        observations.append(PoseObservation(f"{index:04d}", capture.X_WF, left, right, why))
     return observations, size
 
 

@@ -60,6 +60,9 @@ def build_report(solution: Solution, truth: dict | None, extra: dict | None = No
         "poses_used": len(he.used),
         "poses_outliers": he.outliers,
         "poses_board_not_found": he.not_found,
+        "board_not_found_reasons": {
+            o.name: o.not_found for o in solution.observations if o.left is None and o.not_found
+        },
         "reprojection_rms_px": he.rms_px,
         "reprojection_rms_after_robot_corrections_px": he.corrected_rms_px,
         "stereo_rms_px": None if solution.stereo is None else solution.stereo.rms_px,
@@ -93,7 +96,14 @@ def report_text(report: dict) -> str:
     if report["poses_outliers"]:
         lines.append(f"  rejected as outliers: {', '.join(report['poses_outliers'])}")
     if report["poses_board_not_found"]:
-        lines.append(f"  board not found in: {', '.join(report['poses_board_not_found'])}")
+        reasons = report.get("board_not_found_reasons", {})
+        lines.append(
+            "  board not found in: "
+            + ", ".join(
+                f"{name} ({reasons[name]})" if name in reasons else name
+                for name in report["poses_board_not_found"]
+            )
+        )
     if report.get("stereo_rms_px") is not None:
         lines.append(f"stereo calibration RMS: {report['stereo_rms_px']:.3f} px")
     if report.get("camera_rms_px") is not None:

@@ -59,7 +59,11 @@ def solve(
     t0 = time.perf_counter()
     is_stereo = any(o.right is not None for o in observations)
     found = [o for o in observations if o.left is not None]
-    missing = [o.name for o in observations if o.left is None]
+    missing = [
+        f"{o.name} ({o.not_found})" if o.not_found else o.name
+        for o in observations
+        if o.left is None
+    ]
     require_poses(len(found), len(observations), missing, settings.min_poses)
     stereo_cal, camera_rms = None, None
     if intrinsics is None:
