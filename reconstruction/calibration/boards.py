@@ -481,6 +481,25 @@ def detect_board_or_reason(
     return _why_not_found(spec, gray, detection, min_points, limits)
 
 
+def larger_chessboard(spec: BoardSpec, image: np.ndarray) -> tuple[int, int] | None:
+    """A grid (inner corners) one corner wider or taller than the given chessboard's, if the
+    image holds one: the classic detector also finds a smaller grid inside a larger board, so a
+    wrong board size would pass unnoticed (and the numbering could shift between views). One
+    image can show a spurious larger grid (a board printed with cut outer squares did); a
+    folder where most do has a wrong board size."""
+    if spec.kind != "chessboard":
+        return None
+    gray = _gray(image)
+    cols, rows = spec.cols - 1, spec.rows - 1
+    for pattern in ((cols + 1, rows), (cols, rows + 1)):
+        found, _ = cv2.findChessboardCorners(
+            gray, pattern, flags=_CLASSIC_FLAGS | cv2.CALIB_CB_FAST_CHECK
+        )
+        if found:
+            return pattern
+    return None
+
+
 @dataclass(frozen=True, eq=False)
 class BoardImage:
     """A printable pattern: grey image, and where the board frame sits on it.

@@ -14,17 +14,20 @@ from reconstruction.transforms import check_pose, pose_from_rvec_tvec
 
 @dataclass(frozen=True, eq=False)
 class PoseObservation:
-    """One robot pose: its name (file or capture), the flange pose X_WF the robot reported, and
-    the board points each camera found (None: board not found), and why the left camera's
-    board was not found (empty when it was, or when the reason is unknown)."""
+    """One robot pose: its name (file or capture), the flange pose X_WF the robot reported (None
+    for a camera-only calibration, which has no robot), the board points each camera found
+    (None: board not found), and why the left camera's board was not found (empty when it was,
+    or when the reason is unknown)."""
 
     name: str
-    X_WF: np.ndarray
+    X_WF: np.ndarray | None
     left: Detection | None
     right: Detection | None = None
     not_found: str = ""
 
     def __post_init__(self) -> None:
+        if self.X_WF is None:
+            return
         X = check_pose(self.X_WF, f"{self.name}: X_WF").copy()
         X.setflags(write=False)
         object.__setattr__(self, "X_WF", X)

@@ -15,7 +15,12 @@ from scanner.arguments import for_flag
 from scanner.calibrate.config import CalibrateConfig, load_calibrate_config
 from scanner.calibrate.eye_in_hand import run_eye_in_hand
 from scanner.calibrate.eye_to_hand import run_eye_to_hand
-from scanner.calibrate.offline import OfflineOptions, calibrate_directory
+from scanner.calibrate.offline import (
+    OfflineOptions,
+    calibrate_cameras_directory,
+    calibrate_directory,
+    cameras_only_images,
+)
 from scanner.calibrate.report import error_text
 from scanner.progress import ProgressBar
 from scanner.results_folder import require_replaceable
@@ -84,6 +89,25 @@ def _config(args: argparse.Namespace) -> CalibrateConfig:
     if args.grid_spacing is not None:
         e2h = for_flag("--grid-spacing", lambda: replace(e2h, grid_spacing_m=args.grid_spacing))
     return replace(config, eye_to_hand=e2h)
+
+
+def _print_cameras_summary(run) -> None:
+    r = run.report
+    print(
+        f"camera calibration (no robot poses): board found in {r['boards_found']} of "
+        f"{r['images']} images"
+    )
+    if "stereo_rms_px" in r:
+        print(
+            f"stereo RMS reprojection: {r['stereo_rms_px']:.3f} px; rectified epipolar error: "
+            f"median {r['epipolar_median_px']:.3f} px, p95 {r['epipolar_p95_px']:.3f} px; "
+            f"baseline {1e3 * r['baseline_m']:.2f} mm"
+        )
+    else:
+        print(f"RMS reprojection: {r['camera_rms_px']:.3f} px")
+    print("hand-eye: not calibrated (the camera tool's nominal X_FC is in the file)")
+    print(f"calibration file: {run.calibration_file}")
+    print(f"report: {run.results_dir / 'report.txt'}")
 
 
 def _print_summary(report: dict, results_dir: Path, calibration_file: Path) -> None:
@@ -171,6 +195,10 @@ def run_calibrate_command(args: argparse.Namespace) -> int:
         out = args.out
         if out is None and not is_store:
             out = Path("calibrations") / f"{root.name}-{_stamp()}"
+        if cameras_only_images(root, options) is not None:
+            cameras = calibrate_cameras_directory(root, options, config.solver, out, args.force)
+            _print_cameras_summary(cameras)
+            return 0
         run = calibrate_directory(root, options, config.solver, out, force=args.force)
         _print_summary(run.report, run.results_dir, run.calibration_file)
         return 0

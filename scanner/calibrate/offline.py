@@ -14,7 +14,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from reconstruction.calibration.boards import BoardSpec, Detection, detect_board_or_reason
+from reconstruction.calibration.boards import (
+    BoardSpec,
+    Detection,
+    detect_board_or_reason,
+    larger_chessboard,
+)
 from reconstruction.calibration.file import load_calibration
 from reconstruction.calibration.observations import PoseObservation
 from reconstruction.calibration.plausibility import implausible_figures, rank_conventions
@@ -29,6 +34,7 @@ from reconstruction.camera_model import PinholeCamera, StereoCamera, stereo_came
 from reconstruction.errors import RefusedResultError, ScannerError
 from reconstruction.yaml_files import read_yaml
 from robots.truth import load_truth
+from scanner.calibrate.cameras_only import CamerasRun, calibrate_cameras, require_board_size
 from scanner.calibrate.report import CALIBRATION_FILE, build_report, truth_errors, write_results
 from scanner.calibrate.solve import CalibrationRun, Solution, solve
 from scanner.captures import CaptureStore
@@ -117,6 +123,38 @@ def _images(root: Path) -> list[Path]:
     return images
 
 
+def cameras_only_images(root: Path, options: OfflineOptions) -> list[Path] | None:
+    """The images of a foreign folder that has no robot poses at all (no --pose-file, no pose
+    file beside any image): a camera-only calibration. None when there are poses."""
+    root = Path(root)
+    if (root / "scan.yaml").is_file() or options.pose_file is not None:
+        return None
+    images = _images(root)
+    if any((root / (image.stem + options.pose_suffix)).is_file() for image in images):
+        return None
+    return images
+
+
+def calibrate_cameras_directory(
+    root: Path,
+    options: OfflineOptions,
+    settings: CalibrationSettings,
+    out_dir: Path,
+    force: bool = False,
+) -> CamerasRun:
+    """The cameras alone from a folder without robot poses (see `cameras_only`)."""
+    images = cameras_only_images(root, options)
+    if images is None:
+        raise ScannerError(f"{root}: has robot poses; calibrate it with hand-eye")
+    if options.board is None:
+        raise ScannerError(f"{root}: give the board (--board, --board-size, --board-spacing)")
+    if options.intrinsics is not None:
+        raise ScannerError("--intrinsics: a camera-only calibration estimates them; leave it out")
+    return calibrate_cameras(
+        root, images, options.board, settings, out_dir, force, _read_gray, _detect
+    )
+
+
 def _read_poses(
     root: Path, images: list[Path], options: OfflineOptions, fmt: PoseFormat
 ) -> list[np.ndarray]:
@@ -149,7 +187,7 @@ def _foreign_observations(
     if options.board is None:
         raise ScannerError(f"{root}: give the board (--board, --board-size, --board-spacing)")
     poses = _read_poses(root, images, options, options.pose_format)
-    observations, size = [], None
+    observations, size, larger = [], None, []
     for image, X_WF in zip(images, poses):
         gray = _read_gray(image)
         this_size = (gray.shape[1], gray.shape[0])
@@ -161,7 +199,10 @@ def _foreign_observations(
             right_path = root / "right" / image.name
             right, _ = _detect(options.board, _read_gray(right_path), settings)
         left, why = _detect(options.board, gray, settings)
+        if left is not None:
+            larger.append(larger_chessboard(options.board, gray))
         observations.append(PoseObservation(image.stem, X_WF, left, right, why))
+    require_board_size(root, options.board, larger)
     return observations, size
 
 
