@@ -107,3 +107,25 @@ def test_subsampling_and_open3d(scene, cloud_and_accuracy):
     pcd = to_open3d(sparse)
     assert len(pcd.points) == len(sparse)
     assert np.allclose(np.asarray(pcd.points), sparse.points_C)
+
+
+def test_low_texture_is_kept_only_where_texture_at_its_depth_frames_it():
+    """A smooth panel framed by texture at the same disparity stays; a featureless background
+    beside a textured object, carrying the object's smeared disparity, goes with a band."""
+    from reconstruction.stereo.filters import supported_low_texture
+
+    rng = np.random.default_rng(0)
+    grey = np.full((120, 200), 128, np.uint8)
+    disparity = np.full((120, 200), np.nan, np.float32)
+    # Left: a textured frame around a smooth panel, all at disparity 40 (a poster on a wall).
+    grey[10:110, 10:90] = rng.integers(0, 255, (100, 80))
+    grey[30:90, 30:70] = 128
+    disparity[10:110, 10:90] = 40.0
+    # Right: a textured object at disparity 60; SGBM smeared 60 onto 12 px of the flat
+    # background to its left, beyond that it found nothing.
+    grey[30:90, 140:180] = rng.integers(0, 255, (60, 40))
+    disparity[30:90, 128:180] = 60.0
+    keep = supported_low_texture(disparity, grey, 9, 4.0, 3, 2.0, 0.5, 20)
+    assert keep[40:80, 40:60].all()  # the panel's inside
+    assert not keep[30:90, 128:136].any()  # the skirt
+    assert keep[40:80, 150:170].all()  # the object's inside

@@ -43,14 +43,23 @@ def texture_mask(
 
 
 def _framed_along_rows(disparity: np.ndarray, anchors: np.ndarray, tolerance_px: float):
-    """Pixels with an anchor on both sides in their row whose disparity is within
-    tolerance_px of the straight line between the two anchors' disparities (a plane seen in
-    perspective has a disparity linear in the image coordinates)."""
+    """Pixels with an anchor on both sides in their row, reached without crossing a pixel
+    without disparity (a gap in the data may be background seen between two parts of the
+    object), whose disparity is within tolerance_px of the straight line between the two
+    anchors' disparities (a plane seen in perspective has a disparity linear in the image)."""
     height, width = disparity.shape
     column = np.broadcast_to(np.arange(width), (height, width))
-    left = np.maximum.accumulate(np.where(anchors, column, -1), axis=1)
-    right = np.minimum.accumulate(np.where(anchors, column, width)[:, ::-1], axis=1)[:, ::-1]
+    gaps = ~np.isfinite(disparity)
+
+    def nearest(mask, side):
+        if side == "left":
+            return np.maximum.accumulate(np.where(mask, column, -1), axis=1)
+        flipped = np.where(mask, column, width)[:, ::-1]
+        return np.minimum.accumulate(flipped, axis=1)[:, ::-1]
+
+    left, right = nearest(anchors, "left"), nearest(anchors, "right")
     framed = (left >= 0) & (right < width)
+    framed &= (left > nearest(gaps, "left")) & (right < nearest(gaps, "right"))
     row = np.arange(height)[:, None]
     left, right = np.clip(left, 0, width - 1), np.clip(right, 0, width - 1)
     d_left, d_right = disparity[row, left], disparity[row, right]
@@ -75,25 +84,35 @@ def supported_low_texture(
     anchor_erode_px: int,
     tolerance_px: float,
     min_framed_fraction: float,
+    min_gap_px: int,
 ) -> np.ndarray:
-    """`texture_mask` pixels, and the others when framed (`enclosed_mask`) inside a region
-    (4-connected) of such pixels of which at least min_framed_fraction is framed. Anchors are
-    pixels whose own window is textured, eroded by anchor_erode_px: the band just outside a
-    silhouette carries the object's fattened disparity and must not frame the background."""
-    textured = texture_mask(grey, window_px, min_std_levels)
-    low = ~textured
-    valid = np.isfinite(disparity)
+    """Pixels to keep. Low-texture pixels (their window's grey-level std at most
+    min_std_levels) are kept when framed (`enclosed_mask`) inside a low-texture region
+    (4-connected, valid pixels) of which at least min_framed_fraction is framed. Next to the
+    other low-texture pixels (unsupported regions, and those without a disparity) a band of
+    half a window goes too: that is where SGBM fattens the object over the background. Anchors
+    are textured pixels eroded by anchor_erode_px."""
     own = texture_mask(grey, window_px, min_std_levels, erode=False)
+    low = ~own
+    valid = np.isfinite(disparity)
     kernel = np.ones((anchor_erode_px, anchor_erode_px), np.uint8)
     anchors = cv2.erode(own.astype(np.uint8), kernel).astype(bool) & valid
     framed = enclosed_mask(disparity, anchors, tolerance_px)
-    region_pixels = (low & valid).astype(np.uint8)
-    count, labels = cv2.connectedComponents(region_pixels, connectivity=4)
+    count, labels = cv2.connectedComponents((low & valid).astype(np.uint8), connectivity=4)
     size = np.bincount(labels.ravel(), minlength=count)
     framed_size = np.bincount(labels.ravel(), weights=(framed & low).ravel(), minlength=count)
     supported = framed_size >= min_framed_fraction * np.maximum(size, 1)
-    supported[0] = False  # label 0: the pixels outside every low-texture region
-    return textured | (framed & supported[labels])
+    supported[0] = False  # label 0: pixels outside every valid low-texture region
+    in_supported = supported[labels]
+    # Low-texture pixels without a disparity count when they form a gap of min_gap_px or more
+    # (the background SGBM left empty); a few scattered holes in a smooth surface do not.
+    count, gap_labels = cv2.connectedComponents((low & ~valid).astype(np.uint8), connectivity=8)
+    gap_size = np.bincount(gap_labels.ravel(), minlength=count)
+    gap_size[0] = 0
+    gaps = gap_size[gap_labels] >= min_gap_px
+    unsupported = (low & valid & ~in_supported) | gaps
+    band = cv2.dilate(unsupported.astype(np.uint8), np.ones((window_px, window_px), np.uint8))
+    return ~band.astype(bool) & ~(low & ~(framed & in_supported))
 
 
 def jump_mask(disparity: np.ndarray, window_px: int, max_jump_px: float) -> np.ndarray:

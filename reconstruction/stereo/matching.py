@@ -144,6 +144,7 @@ def disparity_image(
                 params.support_anchor_erode_px,
                 params.support_tolerance_px,
                 params.support_min_fraction,
+                params.support_min_gap_px,
             )
         ] = np.nan
     if params.max_jump_px > 0:

@@ -64,24 +64,29 @@ class StereoParams:
     # If set, a second SGBM pass with the right image as reference; left pixels whose match does
     # not point back within this many pixels are rejected (doubles the matching time).
     lr_check_max_diff_px: float | None = None
-    # Low texture: pixels with a neighbour (within half a window) whose grey-level std over the
-    # window is below texture_min_std_levels (0 = no texture filter). 4 levels is twice the
-    # simulated sensor noise; a 9 px window keeps every object pixel of the simulated vase
-    # (measured). low_texture: "supported" keeps low-texture pixels whose disparity continues
-    # that of textured pixels on both sides (within support_tolerance_px) in a region mostly
-    # so framed (at least support_min_fraction; anchors eroded by support_anchor_erode_px):
-    # smooth real surfaces stay, the skirt SGBM smears onto a featureless background goes
-    # (`stereo.filters.supported_low_texture`); "reject" drops every low-texture pixel (the
-    # simulator's background, but also smooth real surfaces: Middlebury density 0.40-0.58).
-    # Measured on Middlebury Tsukuba / Venus with these defaults: density 0.979 / 0.921, bad
-    # pixels (> 1 px) 4.66 / 1.56 % (plain SGBM 4.65 / 1.52 %); simulated background
-    # false-valid 0.14 % (vase), 0.29 % (bracket), against 3.9-4.0 % without the filter.
+    # Low texture: pixels whose grey-level std over the window is at most
+    # texture_min_std_levels (0 = no texture filter; 4 levels is twice the simulated sensor
+    # noise). low_texture "supported" (`stereo.filters.supported_low_texture`): such pixels stay
+    # when their disparity continues that of textured pixels on both sides (within
+    # support_tolerance_px, anchors eroded by support_anchor_erode_px) in a region mostly so
+    # framed (support_min_fraction); next to unsupported regions and to gaps of
+    # support_min_gap_px pixels without disparity, a band of half a window goes (SGBM's
+    # fattening over the background). Smooth real surfaces stay, the skirt over a featureless
+    # background goes. "reject": every pixel with a low-texture neighbour goes (the simulator
+    # is fine with it; smooth real surfaces go too: Middlebury density 0.40-0.58).
+    # Measured with these defaults: Middlebury Tsukuba / Venus density 0.974 / 0.911, bad
+    # pixels (> 1 px) 4.63 / 1.39 % (plain SGBM 0.98 / 0.96, 4.65 / 1.52 %); simulated
+    # background false-valid 0.13 % (vase) / 0.16 % (bracket), 3.9-4.0 % without the filter;
+    # the 24-view bunny's observed-surface Chamfer 0.234 mm ("reject": 0.237 mm).
     texture_window_px: int = 9
     texture_min_std_levels: float = 4.0
     low_texture: str = "supported"
     support_tolerance_px: float = 2.0
     support_min_fraction: float = 0.5
     support_anchor_erode_px: int = 3
+    # Low-texture pixels without a disparity in a connected gap of this many pixels or more
+    # are background: a band of half a texture window next to them goes (SGBM's fattening).
+    support_min_gap_px: int = 20
     # Pixels whose window holds valid disparities further apart than max_jump_px are rejected
     # (0 = off): the fattened band at depth steps. 8 px is a 13 mm step at 0.5 m; a 3 px window
     # matches the 3 px block, which blurs a step over about one pixel on each side.
@@ -105,7 +110,12 @@ class StereoParams:
         require_count(
             "stereo",
             self,
-            ("uniqueness_ratio_percent", "speckle_window_px", "speckle_range_px"),
+            (
+                "uniqueness_ratio_percent",
+                "speckle_window_px",
+                "speckle_range_px",
+                "support_min_gap_px",
+            ),
             minimum=0,
         )
         # OpenCV cannot switch its internal left-right check off.
