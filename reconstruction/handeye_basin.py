@@ -23,7 +23,7 @@ from reconstruction.errors import ScannerError
 from reconstruction.filtering import FilteredCloud
 from reconstruction.handeye_refine import CloudFit, HandEyeRefinement, RefineLevel, refine_on_clouds
 from reconstruction.robust_loss import check_loss
-from reconstruction.transforms import pose_difference
+from reconstruction.transforms import pose_difference, twist_to_pose
 
 
 def _default_coarse_levels() -> tuple[RefineLevel, ...]:
@@ -51,6 +51,12 @@ class CoarseHandEyeConfig:
     loss: str = "cauchy"
     loss_scale_m: float = 0.002
     refilter_above_m: float = 0.02
+    # A fit that leaves fewer than this share of points matched at the last gate is in a wrong
+    # basin (measured on the bunny: right fits 0.89, a wrong one from 20 mm / 15 deg 0.60);
+    # then the fit is started again from the nominal X_FC turned by restart_angle_rad about
+    # each axis of C, both ways, and the best match fraction wins.
+    good_match_fraction: float = 0.8
+    restart_angle_rad: float = math.radians(10.0)
 
     def __post_init__(self) -> None:
         check_loss(self.loss, "handeye.coarse.loss")
@@ -65,8 +71,14 @@ class CoarseHandEyeConfig:
                 "target_voxel_size_m",
                 "loss_scale_m",
                 "refilter_above_m",
+                "restart_angle_rad",
             ),
         )
+        if not 0.0 <= self.good_match_fraction <= 1.0:
+            raise ScannerError(
+                "handeye.coarse.good_match_fraction: must be within 0..1, got "
+                f"{self.good_match_fraction}"
+            )
         require_count("handeye.coarse", self, ("max_points_per_view",), minimum=10)
 
     def fit(self, seed: int) -> CloudFit:
@@ -115,9 +127,20 @@ def coarse_handeye(
     config: CoarseHandEyeConfig,
     seed: int = 0,
 ) -> HandEyeRefinement | None:
-    """X_FC from a rough start; None when no two views overlap."""
+    """X_FC from a rough start (restarted from turned starts when the fit is poor); None when
+    no two views overlap."""
     X_WC = [X @ X_FC_nominal for X in X_WF]
     pairs = direction_pairs(X_WC, groups, config.pair_angle_rad)
     if not pairs:
         return None
-    return refine_on_clouds(clouds, X_WF, pairs, X_FC_nominal, config.fit(seed))
+    best = refine_on_clouds(clouds, X_WF, pairs, X_FC_nominal, config.fit(seed))
+    for axis in range(6):
+        if best.match_fraction >= config.good_match_fraction:
+            break
+        twist = np.zeros(6)
+        twist[axis // 2] = config.restart_angle_rad * (1 if axis % 2 == 0 else -1)
+        start = X_FC_nominal @ twist_to_pose(twist)
+        fit = refine_on_clouds(clouds, X_WF, pairs, start, config.fit(seed))
+        if fit.match_fraction > best.match_fraction:
+            best = fit
+    return best

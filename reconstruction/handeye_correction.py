@@ -69,6 +69,10 @@ class HandEyeConfig:
     max_correction_rad: float = math.radians(20.0)
     seed: int = 0
     coarse: CoarseHandEyeConfig = field(default_factory=CoarseHandEyeConfig)
+    # Rounds of registration + correction, until X_FC moves points at the working distance by
+    # at most round_tolerance_m (a few times the stereo noise).
+    max_rounds: int = 3
+    round_tolerance_m: float = 0.001
     convergence: ConvergenceLimits = field(default_factory=ConvergenceLimits)
 
     def __post_init__(self) -> None:
@@ -89,8 +93,10 @@ class HandEyeConfig:
                 "refine_tolerance_rad",
                 "max_correction_m",
                 "max_correction_rad",
+                "round_tolerance_m",
             ),
         )
+        require_count("handeye", self, ("max_rounds",))
         require_count("handeye", self, ("refine_max_points_per_view",), minimum=10)
         require_count("handeye", self, ("axxb_max_rejection_rounds",), minimum=0)
 
@@ -198,20 +204,21 @@ def correct_handeye(
     X_FC_nominal: np.ndarray,
     config: HandEyeConfig,
     coarse: HandEyeRefinement | None = None,
+    X_FC_start: np.ndarray | None = None,
 ) -> HandEyeResult:
     """AX = XB with every OpenCV method on the refined poses (when there are any), then the
-    joint refinement from the coarse stage's answer (`coarse`, when it ran and is plausible),
-    else from the configured method's answer (or the nominal X_FC when that answer is
-    implausible), each step checked against the sanity limits; then the diagnosis."""
+    joint refinement from X_FC_start (the coarse stage's or an earlier round's answer, which
+    the registration started from), else from the configured method's answer (or the nominal
+    X_FC when that answer is implausible), each step checked against the sanity limits; then
+    the diagnosis (`coarse`: the coarse stage's fit, reported)."""
     X_FC_nominal = np.asarray(X_FC_nominal, float)
     notes: list[str] = []
     axxb: dict[str, AxxbSolution] = {}
     X_start, source = X_FC_nominal, "nominal"
-    if coarse is not None:
-        if plausible_correction(coarse.X_FC, X_FC_nominal, config):
-            X_start, source = coarse.X_FC, "coarse"
-        else:
-            notes.append("the coarse hand-eye fit moved X_FC beyond the sanity limits; not used")
+    if coarse is not None and not plausible_correction(coarse.X_FC, X_FC_nominal, config):
+        notes.append("the coarse hand-eye fit moved X_FC beyond the sanity limits; not used")
+    if X_FC_start is not None and not np.allclose(X_FC_start, X_FC_nominal):
+        X_start, source = np.asarray(X_FC_start, float), "coarse"
     if X_WC_refined is not None and len(X_WF) >= 3:
         for name in HAND_EYE_METHODS:
             axxb[name] = solve_axxb(X_WF, X_WC_refined, name, config)
@@ -242,7 +249,7 @@ def correct_handeye(
         X_FC,
         refinement,
         axxb[config.axxb_method].X_FC if config.axxb_method in axxb else None,
-        None if coarse is None else coarse.X_FC,
+        None if source == "nominal" else X_start,
         config.convergence,
     )
     dt, dr = pose_difference(X_FC_nominal, X_FC)

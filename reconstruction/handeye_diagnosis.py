@@ -5,8 +5,8 @@
 - match RMS: those matches' point-to-plane distance, against the stereo noise;
 - AX = XB agreement: OpenCV's solver on the motions that pairwise ICP and the pose graph found
   (they do not use the clouds' joint fit) against the final X_FC;
-- coarse to fine: how far the fine fit moved from the coarse stage's answer (a fine fit that
-  wanders off means two basins).
+- last change: how far the last round's fit moved X_FC from where that round's registration
+  started (the coarse answer or the round before): registration and correction must agree.
 
 A wrong X_FC leaves the views apart (few matches, large RMS) and the ICP motions disagree with
 it; a right one passes all four.
@@ -32,8 +32,8 @@ class ConvergenceLimits:
     max_match_rms_m: float = 0.0008
     max_axxb_disagreement_m: float = 0.003
     max_axxb_disagreement_rad: float = math.radians(0.5)
-    max_coarse_to_fine_m: float = 0.003
-    max_coarse_to_fine_rad: float = math.radians(0.5)
+    max_last_change_m: float = 0.003
+    max_last_change_rad: float = math.radians(0.5)
 
     def __post_init__(self) -> None:
         require_fraction("handeye.convergence", self, ("min_match_fraction",))
@@ -44,8 +44,8 @@ class ConvergenceLimits:
                 "max_match_rms_m",
                 "max_axxb_disagreement_m",
                 "max_axxb_disagreement_rad",
-                "max_coarse_to_fine_m",
-                "max_coarse_to_fine_rad",
+                "max_last_change_m",
+                "max_last_change_rad",
             ),
         )
 
@@ -58,8 +58,8 @@ class HandEyeDiagnosis:
     match_rms_m: float
     axxb_disagreement_m: float
     axxb_disagreement_rad: float
-    coarse_to_fine_m: float
-    coarse_to_fine_rad: float
+    last_change_m: float
+    last_change_rad: float
     failures: tuple[str, ...]
 
     @property
@@ -71,11 +71,11 @@ def diagnose(
     X_FC: np.ndarray,
     refinement: HandEyeRefinement | None,
     X_FC_axxb: np.ndarray | None,
-    X_FC_coarse: np.ndarray | None,
+    X_FC_round_start: np.ndarray | None,
     limits: ConvergenceLimits,
 ) -> HandEyeDiagnosis:
-    """The diagnosis of a final X_FC from the fine fit, the AX = XB answer and the coarse
-    stage's answer (each None when that step did not run)."""
+    """The diagnosis of a final X_FC from the fine fit, the AX = XB answer and the X_FC the
+    last round started from (each None when that step did not run)."""
     failures = []
     nan = math.nan
     fraction, rms = (
@@ -107,14 +107,15 @@ def diagnose(
                 f"{math.degrees(axxb_r):.2f} deg (limit {1e3 * limits.max_axxb_disagreement_m:g}"
                 f" mm / {math.degrees(limits.max_axxb_disagreement_rad):g} deg)"
             )
-    coarse_t = coarse_r = nan
-    if X_FC_coarse is not None:
-        coarse_t, coarse_r = pose_difference(X_FC_coarse, X_FC)
-        if coarse_t > limits.max_coarse_to_fine_m or coarse_r > limits.max_coarse_to_fine_rad:
+    change_t = change_r = nan
+    if X_FC_round_start is not None:
+        change_t, change_r = pose_difference(X_FC_round_start, X_FC)
+        if change_t > limits.max_last_change_m or change_r > limits.max_last_change_rad:
             failures.append(
-                f"the fine fit moved {1e3 * coarse_t:.1f} mm / {math.degrees(coarse_r):.2f} deg"
-                " from the coarse one (limit "
-                f"{1e3 * limits.max_coarse_to_fine_m:g} mm / "
-                f"{math.degrees(limits.max_coarse_to_fine_rad):g} deg)"
+                f"the last round moved X_FC by {1e3 * change_t:.1f} mm / "
+                f"{math.degrees(change_r):.2f} deg: registration and correction do not agree yet"
+                " (limit "
+                f"{1e3 * limits.max_last_change_m:g} mm / "
+                f"{math.degrees(limits.max_last_change_rad):g} deg)"
             )
-    return HandEyeDiagnosis(fraction, rms, axxb_t, axxb_r, coarse_t, coarse_r, tuple(failures))
+    return HandEyeDiagnosis(fraction, rms, axxb_t, axxb_r, change_t, change_r, tuple(failures))

@@ -90,8 +90,8 @@ def summary(result: ReconstructionResult) -> dict:
             "match_rms_m": d.match_rms_m,
             "axxb_disagreement_m": d.axxb_disagreement_m,
             "axxb_disagreement_rad": d.axxb_disagreement_rad,
-            "coarse_to_fine_m": d.coarse_to_fine_m,
-            "coarse_to_fine_rad": d.coarse_to_fine_rad,
+            "last_change_m": d.last_change_m,
+            "last_change_rad": d.last_change_rad,
             "failures": list(d.failures),
         }
     return out

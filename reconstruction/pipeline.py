@@ -357,6 +357,7 @@ def reconstruct_views(
     groups = group_positions(views, hangings or [[v.index for v in views]])
     coarse = None
     X_FC_start = X_FC_nominal
+    X_FC_filtered = X_FC_nominal  # the X_FC the clouds were cropped and cleaned with
     if config.handeye.enabled and config.handeye.coarse.enabled and len(views) >= 3:
         with timer("handeye_coarse"):
             coarse = coarse_handeye(
@@ -369,30 +370,30 @@ def reconstruct_views(
             )
         if coarse is not None and plausible_correction(coarse.X_FC, X_FC_nominal, config.handeye):
             X_FC_start = coarse.X_FC
-            moved = displacement_at(X_FC_nominal, X_FC_start, _working_distance_m(clouds))
-            if moved > config.handeye.coarse.refilter_above_m:
-                # The crop and the robot's points are placed in W: redo them at the new poses.
-                with timer("filter"):
-                    views, clouds, skipped = filter_views(
-                        all_views, X_FC_start, config, remove_points
-                    )
-                _require_views(views, skipped, config)
-                groups = group_positions(views, hangings or [[v.index for v in views]])
-    X_WF = [v.X_WF for v in views]
-    X_WC_kin = [X @ X_FC_nominal for X in X_WF]
-    X_WC_start = [X @ X_FC_start for X in X_WF]
-
     registered = RegisteredViews((), None, (), ())
-    if (config.icp.enabled or config.handeye.enabled) and len(views) >= 2:
-        indices = [v.index for v in views]
-        registered = register_hangings(clouds, X_WC_start, indices, groups, config, timer)
-        if not registered.pairs:
-            notes.append("no overlapping view pairs: registration and correction skipped")
-
     handeye = None
     X_FC = X_FC_nominal
-    X_WC = list(registered.X_WC) if registered.X_WC is not None else X_WC_start
-    if config.handeye.enabled and len(views) >= 2:
+    # Registration (ICP from X_WF @ X_FC) and the correction of X_FC feed each other: when the
+    # correction moves X_FC, ICP ran from stale poses (and the AX = XB check compares with
+    # them), so register again from the corrected X_FC until it stops moving.
+    for _ in range(max(config.handeye.max_rounds, 1)):
+        distance_m = _working_distance_m(clouds)
+        moved = displacement_at(X_FC_filtered, X_FC_start, distance_m)
+        if moved > config.handeye.coarse.refilter_above_m:
+            # The crop and the robot's points are placed in W: redo them at the new poses.
+            with timer("filter"):
+                views, clouds, skipped = filter_views(all_views, X_FC_start, config, remove_points)
+            _require_views(views, skipped, config)
+            groups = group_positions(views, hangings or [[v.index for v in views]])
+            X_FC_filtered = X_FC_start
+        X_WF = [v.X_WF for v in views]
+        X_WC_start = [X @ X_FC_start for X in X_WF]
+        if (config.icp.enabled or config.handeye.enabled) and len(views) >= 2:
+            indices = [v.index for v in views]
+            registered = register_hangings(clouds, X_WC_start, indices, groups, config, timer)
+        X_WC = list(registered.X_WC) if registered.X_WC is not None else X_WC_start
+        if not (config.handeye.enabled and len(views) >= 2):
+            break
         with timer("handeye"):
             handeye = correct_handeye(
                 clouds,
@@ -402,8 +403,16 @@ def reconstruct_views(
                 X_FC_nominal,
                 config.handeye,
                 coarse,
+                X_FC_start,
             )
         X_FC = handeye.X_FC
+        if displacement_at(X_FC_start, X_FC, distance_m) <= config.handeye.round_tolerance_m:
+            break
+        X_FC_start = X_FC
+    X_WC_kin = [X @ X_FC_nominal for X in X_WF]
+    if (config.icp.enabled or config.handeye.enabled) and len(views) >= 2 and not registered.pairs:
+        notes.append("no overlapping view pairs: registration and correction skipped")
+    if handeye is not None:
         notes += handeye.notes
         X_WC = [X @ X_FC for X in X_WF]
         if config.final_pose_graph and registered.kept_edges:

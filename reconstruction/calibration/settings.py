@@ -19,7 +19,12 @@ class CalibrationSettings:
     min_motion_rotation_rad: relative rotations below this carry too little hand-eye information.
     min_axis_spread_rad: the motions' rotation axes must differ by at least this much, otherwise
         the translation along the common axis is unobservable (Tsai & Lenz 1989).
-    pixel_sigma_px: standard deviation of a detected board point (px), including model error.
+    pixel_sigma_px: standard deviation of a detected board point (px per coordinate), including
+        model error, for the refinements that decide the outliers.
+    pixel_sigma_from_data: the final refinement uses instead the spread of the board points once
+        every pose has its robot correction (what the images alone leave), at least
+        min_pixel_sigma_px (which keeps the weights finite on noise-free synthetic data; corner
+        and circle detectors reach ~0.02 px at best).
     robot_translation_sigma_m, robot_rotation_sigma_rad: accuracy of the reported flange poses
         (0 and 0: trust them exactly). Defaults: a calibrated 6-axis arm of the RX60's class.
     robust_loss, robust_scale: scipy least_squares loss and its scale in sigmas.
@@ -37,6 +42,8 @@ class CalibrationSettings:
     min_motion_rotation_rad: float = math.radians(2.0)
     min_axis_spread_rad: float = math.radians(10.0)
     pixel_sigma_px: float = 0.3
+    pixel_sigma_from_data: bool = True
+    min_pixel_sigma_px: float = 0.01
     robot_translation_sigma_m: float = 0.0002
     robot_rotation_sigma_rad: float = math.radians(0.02)
     robust_loss: str = "soft_l1"
@@ -60,6 +67,7 @@ class CalibrationSettings:
             self,
             (
                 "pixel_sigma_px",
+                "min_pixel_sigma_px",
                 "robust_scale",
                 "outlier_factor",
                 "outlier_min_px",
