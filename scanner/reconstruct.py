@@ -78,8 +78,8 @@ def _write_results(result, processing: ProcessingConfig, truth, out: Path) -> di
                 "match_rms_mm": 1e3 * d["match_rms_m"],
                 "axxb_disagreement_mm": 1e3 * d["axxb_disagreement_m"],
                 "axxb_disagreement_deg": math.degrees(d["axxb_disagreement_rad"]),
-                "coarse_to_fine_mm": 1e3 * d["coarse_to_fine_m"],
-                "coarse_to_fine_deg": math.degrees(d["coarse_to_fine_rad"]),
+                "last_change_mm": 1e3 * d["last_change_m"],
+                "last_change_deg": math.degrees(d["last_change_rad"]),
                 "failures": d["failures"],
             },
         }
