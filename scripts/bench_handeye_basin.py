@@ -67,10 +67,17 @@ def _case(scan, X_FC_true, X_FC_start, processing, out: Path) -> dict:
     }
 
 
-def _basin(good: list[dict], failed: list[dict], key: str) -> float:
-    """The largest start that ended good with no failure at a smaller one."""
-    limit = min((c[key] for c in failed), default=math.inf)
-    return max((c[key] for c in good if c[key] < limit), default=0.0)
+DIAGONAL = 5  # the first STARTS grow together in mm and deg
+
+
+def _basin(cases: list[dict], good: list[dict], key: str) -> float:
+    """The largest diagonal start that ended good, every smaller diagonal start too."""
+    basin = 0.0
+    for case in cases[:DIAGONAL]:
+        if case not in good:
+            break
+        basin = case[key]
+    return basin
 
 
 def main() -> None:
@@ -116,8 +123,9 @@ def main() -> None:
         json.dumps(
             {
                 "cases": cases,
-                "basin_mm": _basin(good, failed, "start_mm"),
-                "basin_deg": _basin(good, failed, "start_deg"),
+                "basin_mm": _basin(cases, good, "start_mm"),
+                "basin_deg": _basin(cases, good, "start_deg"),
+                "not_good": [(c["start_mm"], c["start_deg"]) for c in failed],
                 "false_converged": sum(c["converged_reported"] for c in bad),
                 "missed": sum(not c["converged_reported"] for c in good),
                 "default_case": cases[0],
