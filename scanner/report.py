@@ -235,6 +235,16 @@ def write_summary(report: dict, out: Path) -> Path:
             f"- correction applied: {_fmt(report['X_FC_change_mm'])} mm, "
             f"{_fmt(report['X_FC_change_deg'])} deg"
         ]
+    if "handeye_diagnosis" in report:
+        d = report["handeye_diagnosis"]
+        verdict = "converged" if report["handeye_converged"] else "NOT converged"
+        lines += [
+            f"- the correction {verdict} (judged without truth): "
+            f"{_fmt(100 * d['match_fraction'], 0)} % of the points meet the overlapping views "
+            f"(RMS {_fmt(d['match_rms_mm'])} mm), AX = XB on the ICP motions agrees within "
+            f"{_fmt(d['axxb_disagreement_mm'])} mm / {_fmt(d['axxb_disagreement_deg'])} deg, "
+            f"the last round moved it {_fmt(d['last_change_mm'])} mm"
+        ]
     if "outputs" in report:
         lines += ["", "## Files", ""] + [f"- `{p}`" for p in report["outputs"].values()]
     for name, path in report.get("plots", {}).items():
