@@ -53,7 +53,7 @@ from planners.timing import (
     time_parameterise,
 )
 from planners.validation import ValidationReport, validate_trajectory
-from reconstruction.checks import require_count, require_positive
+from reconstruction.checks import check_fields, integer, positive
 from reconstruction.errors import ScannerError
 from robots.rx60 import RX60, rx60_urdf
 from robots.workcell import Workcell, keep_out_radius_m
@@ -67,66 +67,42 @@ class PlannerConfig:
     """Planner settings. Units are in the names; every field is validated on construction."""
 
     # Clearance kept between the robot (incl. tool) and the cell, and between robot links.
-    padding_m: float = 0.010
+    padding_m: float = positive(0.010)
     # Roadmap: OMPL PRM grows until it has roadmap_milestones vertices or prm_build_time_s.
-    roadmap_milestones: int = 1000
-    prm_build_time_s: float = 90.0
-    prm_neighbours: int = 10
+    roadmap_milestones: int = integer(1000)
+    prm_build_time_s: float = positive(90.0)
+    prm_neighbours: int = integer(10)
     # Edges are collision-checked with no joint moving more than this between checks.
-    edge_step_rad: float = 0.5 * _DEG
+    edge_step_rad: float = positive(0.5 * _DEG)
     # A query joins start and goal to this many nearest milestones (lazily checked).
-    query_neighbours: int = 10
-    query_max_edge_checks: int = 60
+    query_neighbours: int = integer(10)
+    query_max_edge_checks: int = integer(60)
     # Fallback when the roadmap has no route: OMPL RRTConnect for at most this long.
-    query_time_s: float = 1.0
+    query_time_s: float = positive(1.0)
     # OMPL shortcutting: attempts per pass of vertex reduction / shortcutting.
-    shortcut_steps: int = 6
+    shortcut_steps: int = integer(6)
     # TOPPRA: grid points per path segment (20 put a straight move within 0.05 % of its
     # optimal time); limits scaled by this fraction because TOPPRA enforces them at grid
     # points only (the validation checks the true limits).
-    toppra_gridpoints_per_segment: int = 20
+    toppra_gridpoints_per_segment: int = integer(20, minimum=2)
     toppra_limit_fraction: float = 0.95
     # When the validation finds a limit exceeded: retries with twice the grid, 0.9 x the limits.
-    toppra_retries: int = 2
+    toppra_retries: int = integer(2, minimum=0)
     # Dense validation: sample spacing (at most 0.25 deg per joint, so that no obstacle thinner
     # than the padding slips between samples at the arm's reach) and relative slack on the
     # velocity/acceleration limits (numerical noise only).
-    max_joint_step_rad: float = 0.25 * _DEG
+    max_joint_step_rad: float = positive(0.25 * _DEG)
     limit_tolerance: float = 1e-6
     # Moves smaller than this (max over joints) are far below encoder resolution: they are
     # made as a smooth creep of creep_time_s instead of through the planner.
-    min_move_rad: float = 1e-6
-    creep_time_s: float = 0.01
+    min_move_rad: float = positive(1e-6)
+    creep_time_s: float = positive(0.01)
     # Where roadmaps are cached (None: never cached).
     cache_dir: str | None = None
-    seed: int = 1
+    seed: int = integer(1)  # OMPL rejects a zero seed
 
     def __post_init__(self) -> None:
-        require_positive(
-            "planner",
-            self,
-            (
-                "padding_m",
-                "prm_build_time_s",
-                "edge_step_rad",
-                "query_time_s",
-                "max_joint_step_rad",
-                "min_move_rad",
-                "creep_time_s",
-            ),
-        )
-        require_count(
-            "planner",
-            self,
-            (
-                "roadmap_milestones",
-                "prm_neighbours",
-                "query_neighbours",
-                "query_max_edge_checks",
-                "shortcut_steps",
-            ),
-        )
-        require_count("planner", self, ("toppra_gridpoints_per_segment",), minimum=2)
+        check_fields("planner", self)
         if not 0 < self.toppra_limit_fraction <= 1:
             raise ScannerError("planner.toppra_limit_fraction: must be in (0, 1]")
         if self.edge_step_rad > 0.5 * _DEG + 1e-12:
@@ -140,8 +116,6 @@ class PlannerConfig:
             )
         if not (0 <= self.limit_tolerance < 0.01):
             raise ScannerError("planner.limit_tolerance: must be in [0, 0.01)")
-        require_count("planner", self, ("toppra_retries",), minimum=0)
-        require_count("planner", self, ("seed",))  # OMPL rejects a zero seed
 
     def roadmap_parameters(self) -> dict:
         """The fields the roadmap depends on (the cache key), not the query-time ones."""

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from reconstruction.checks import require_count, require_positive
+from reconstruction.checks import check_fields, integer, positive
 from reconstruction.errors import ScannerError
 from reconstruction.transforms import invert, make_pose
 from reconstruction.yaml_files import read_yaml
@@ -132,15 +132,14 @@ class StereoDesign:
     baseline along the left camera's +x axis and OpenCV distortion, both cameras alike.
     Defaults: the Bumblebee-like wrist rig of the SDU report."""
 
-    width_px: int = 1280
-    height_px: int = 960
-    focal_px: float = 1320.0
-    baseline_m: float = 0.12
+    width_px: int = integer(1280, minimum=16)
+    height_px: int = integer(960, minimum=16)
+    focal_px: float = positive(1320.0)
+    baseline_m: float = positive(0.12)
     distortion: tuple[float, float, float, float, float] = (-0.42, 0.19, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
-        require_count("camera", self, ("width_px", "height_px"), minimum=16)
-        require_positive("camera", self, ("focal_px", "baseline_m"))
+        check_fields("camera", self)
 
     def stereo_camera(self) -> StereoCamera:
         return default_stereo_camera(

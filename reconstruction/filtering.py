@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 
-from reconstruction.checks import require_count, require_positive
+from reconstruction.checks import check_fields, integer, positive
 from reconstruction.errors import ScannerError
 from reconstruction.transforms import transform_points
 
@@ -34,7 +34,7 @@ class RegionOfInterest:
     shape: str = "sphere"
     center_m: tuple[float, float, float] | None = None
     # Default: a 0.2 m object (bounding sphere radius 0.173 m) plus 27 mm for pose error.
-    radius_m: float = 0.2
+    radius_m: float = positive(0.2)
     half_extent_m: tuple[float, float, float] = (0.15, 0.15, 0.15)
 
     def __post_init__(self) -> None:
@@ -44,7 +44,7 @@ class RegionOfInterest:
             len(self.center_m) != 3 or not all(math.isfinite(c) for c in self.center_m)
         ):
             raise ScannerError(f"roi.center_m: expected three finite numbers, got {self.center_m}")
-        require_positive("roi", self, ("radius_m",))
+        check_fields("roi", self)
         if len(self.half_extent_m) != 3 or not all(h > 0 for h in self.half_extent_m):
             raise ScannerError(
                 f"roi.half_extent_m: three positive numbers, got {self.half_extent_m}"
@@ -65,20 +65,18 @@ class FilterConfig:
     # 1 mm voxels: the pixel footprint is 0.38 mm at 0.5 m (f = 1320 px), so each voxel averages
     # ~7 stereo points (median depth noise ~0.2 mm) while every later stage (finest ICP
     # level, hand-eye targets, fused cloud) works at 1 mm anyway.
-    voxel_size_m: float = 0.001
-    outlier_neighbors: int = 20
-    outlier_std_ratio: float = 2.5
+    voxel_size_m: float = positive(0.001)
+    # 0 disables the statistical outlier removal.
+    outlier_neighbors: int = integer(20, minimum=0)
+    outlier_std_ratio: float = positive(2.5)
     # Normals from a 3 mm neighbourhood (~25 points): wide enough to average the depth noise,
     # narrow enough for the objects' curvature radii (>= ~10 mm on the built-ins).
-    normal_radius_m: float = 0.003
-    normal_max_neighbors: int = 30
-    min_points: int = 200
+    normal_radius_m: float = positive(0.003)
+    normal_max_neighbors: int = integer(30, minimum=3)
+    min_points: int = integer(200, minimum=3)
 
     def __post_init__(self) -> None:
-        require_positive("filter", self, ("voxel_size_m", "normal_radius_m", "outlier_std_ratio"))
-        # outlier_neighbors 0 disables the statistical outlier removal.
-        require_count("filter", self, ("outlier_neighbors",), minimum=0)
-        require_count("filter", self, ("normal_max_neighbors", "min_points"), minimum=3)
+        check_fields("filter", self)
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from reconstruction.checks import require_count, require_fraction, require_positive
+from reconstruction.checks import check_fields, fraction, integer, positive
 from reconstruction.transforms import invert, rotation_angle_rad, transform_points
 from reconstruction.views import DepthImage
 
@@ -45,41 +45,24 @@ class AlignmentConfig:
     values of matched points (the texture must agree, not only the shape).
     """
 
-    voxel_m: float = 0.003
-    runs: int = 8
-    coarse_voxel_m: float = 0.008
-    coarse_starts_kept: int = 8
-    ransac_iterations: int = 100_000
-    distinct_rotation_rad: float = math.radians(10.0)
-    inlier_distance_m: float = 0.0015
-    min_overlap: float = 0.2
-    max_inlier_rms_m: float = 0.001
-    free_space_margin_m: float = 0.003
-    max_free_space_violation: float = 0.1
-    max_ambiguity: float = 0.9
+    voxel_m: float = positive(0.003)
+    runs: int = integer(8)
+    coarse_voxel_m: float = positive(0.008)
+    coarse_starts_kept: int = integer(8)
+    ransac_iterations: int = integer(100_000)
+    distinct_rotation_rad: float = positive(math.radians(10.0))
+    inlier_distance_m: float = positive(0.0015)
+    min_overlap: float = fraction(0.2)
+    max_inlier_rms_m: float = positive(0.001)
+    free_space_margin_m: float = positive(0.003)
+    max_free_space_violation: float = fraction(0.1)
+    max_ambiguity: float = fraction(0.9)
     # Measured (grey correlation of matched points, 1280x960): the bunny's true alignment
     # 0.31, the bracket's 0.36 (640x480); a teapot turned by 180 deg (its body fits) 0.11.
-    min_colour_agreement: float = 0.2
+    min_colour_agreement: float = fraction(0.2)
 
     def __post_init__(self) -> None:
-        require_positive(
-            "alignment",
-            self,
-            (
-                "voxel_m",
-                "coarse_voxel_m",
-                "distinct_rotation_rad",
-                "inlier_distance_m",
-                "max_inlier_rms_m",
-                "free_space_margin_m",
-            ),
-        )
-        require_count("alignment", self, ("runs", "ransac_iterations", "coarse_starts_kept"))
-        require_fraction(
-            "alignment",
-            self,
-            ("min_overlap", "max_free_space_violation", "max_ambiguity", "min_colour_agreement"),
-        )
+        check_fields("alignment", self)
 
 
 @dataclass(frozen=True)
@@ -165,7 +148,6 @@ def _grid_hypotheses(source, target, config: AlignmentConfig) -> list[np.ndarray
     import open3d as o3d
     from scipy.spatial.transform import Rotation
 
-    reg = o3d.pipelines.registration
     voxel = config.coarse_voxel_m
     src, tgt = source.voxel_down_sample(voxel), target.voxel_down_sample(voxel)
     for cloud in (src, tgt):
@@ -176,36 +158,35 @@ def _grid_hypotheses(source, target, config: AlignmentConfig) -> list[np.ndarray
     for R in Rotation.create_group("I").as_matrix():
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R, c_tgt - R @ c_src
-        for distance in (5 * voxel, 2.5 * voxel, 1.25 * voxel):
-            result = reg.registration_icp(
-                src,
-                tgt,
-                distance,
-                T,
-                reg.TransformationEstimationPointToPlane(),
-                reg.ICPConvergenceCriteria(max_iteration=30),
-            )
-            T = np.asarray(result.transformation)
-        fits.append((result.fitness, T))
+        result = _icp_coarse_to_fine(src, tgt, T, (5 * voxel, 2.5 * voxel, 1.25 * voxel), 30)
+        fits.append((result.fitness, np.asarray(result.transformation)))
     fits.sort(key=lambda f: -f[0])
     return [T for _, T in fits[: config.coarse_starts_kept]]
 
 
 def _refine(source, target, T0: np.ndarray, config: AlignmentConfig) -> np.ndarray:
+    gates_m = (3 * config.voxel_m, config.voxel_m, config.inlier_distance_m)
+    return np.asarray(_icp_coarse_to_fine(source, target, T0, gates_m, 50).transformation)
+
+
+def _icp_coarse_to_fine(source, target, T0: np.ndarray, gates_m, max_iterations: int):
+    """Point-to-plane ICP at each correspondence gate in turn, each from the previous fit;
+    Open3D's result of the last (its transformation maps source points into the target)."""
     import open3d as o3d
 
     reg = o3d.pipelines.registration
     T = T0
-    for distance in (3 * config.voxel_m, config.voxel_m, config.inlier_distance_m):
-        T = reg.registration_icp(
+    for distance in gates_m:
+        result = reg.registration_icp(
             source,
             target,
             distance,
             T,
             reg.TransformationEstimationPointToPlane(),
-            reg.ICPConvergenceCriteria(max_iteration=50),
-        ).transformation
-    return np.asarray(T)
+            reg.ICPConvergenceCriteria(max_iteration=max_iterations),
+        )
+        T = result.transformation
+    return result
 
 
 @dataclass(frozen=True)

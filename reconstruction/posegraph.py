@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from reconstruction.checks import require_choice, require_count, require_positive
+from reconstruction.checks import check_fields, integer, positive, require_choice
 from reconstruction.robust_loss import check_loss, irls_weights
 from reconstruction.transforms import (
     invert,
@@ -46,42 +46,28 @@ _reg = o3d.pipelines.registration
 class PoseGraphConfig:
     method: str = "least_squares"
     # Expected misalignment of two views' overlap after ICP: ~the stereo noise (0.2 mm median).
-    edge_sigma_m: float = 0.0003
+    edge_sigma_m: float = positive(0.0003)
     # Kinematic uncertainty of a camera pose: the hand-eye error (3 mm, 1 deg) dominates.
-    prior_translation_sigma_m: float = 0.005
-    prior_rotation_sigma_rad: float = math.radians(1.0)
+    prior_translation_sigma_m: float = positive(0.005)
+    prior_rotation_sigma_rad: float = positive(math.radians(1.0))
     robust_loss: str = "cauchy"
-    robust_scale: float = 3.0  # in sigmas: edges beyond ~3 sigma are down-weighted
-    max_iterations: int = 20
+    robust_scale: float = positive(3.0)  # in sigmas: edges beyond ~3 sigma are down-weighted
+    max_iterations: int = integer(20)
     tolerance: float = 1e-9  # largest step component (rad or m) at which Gauss-Newton stops
     # After optimisation an edge whose residual (at its overlap's centroid) exceeds these is
     # pruned (the worst first) and the graph solved again, at most `max_prune_rounds` times.
-    prune_translation_m: float = 0.001
-    prune_rotation_rad: float = math.radians(0.2)
-    max_prune_rounds: int = 10
+    prune_translation_m: float = positive(0.001)
+    prune_rotation_rad: float = positive(math.radians(0.2))
+    max_prune_rounds: int = integer(10, minimum=0)
     # Open3D method only (see open3d.pipelines.registration.GlobalOptimizationOption).
-    open3d_max_correspondence_m: float = 0.002
+    open3d_max_correspondence_m: float = positive(0.002)
     open3d_edge_prune_threshold: float = 0.25
     open3d_preference_loop_closure: float = 1.0
 
     def __post_init__(self) -> None:
         require_choice("pose_graph", "method", self.method, POSE_GRAPH_METHODS)
         check_loss(self.robust_loss, "pose_graph.robust_loss")
-        require_positive(
-            "pose_graph",
-            self,
-            (
-                "edge_sigma_m",
-                "prior_translation_sigma_m",
-                "prior_rotation_sigma_rad",
-                "robust_scale",
-                "prune_translation_m",
-                "prune_rotation_rad",
-                "open3d_max_correspondence_m",
-            ),
-        )
-        require_count("pose_graph", self, ("max_iterations",))
-        require_count("pose_graph", self, ("max_prune_rounds",), minimum=0)
+        check_fields("pose_graph", self)
 
 
 @dataclass(frozen=True, eq=False)

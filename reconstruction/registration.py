@@ -17,12 +17,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from reconstruction.checks import (
-    require_choice,
-    require_count,
-    require_fraction,
-    require_positive,
-)
+from reconstruction.checks import check_fields, fraction, integer, positive, require_choice
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import FilteredCloud, estimate_normals_towards, o3d_cloud
 from reconstruction.transforms import invert, pose_difference, rotation_angle_rad, transform_points
@@ -45,13 +40,12 @@ ROBUST_KERNELS: dict[str, Callable[[float], object] | None] = {
 class IcpLevel:
     """One pyramid level: down-sampling voxel, correspondence gate and iteration cap."""
 
-    voxel_size_m: float
-    max_correspondence_m: float
-    max_iterations: int
+    voxel_size_m: float = positive()
+    max_correspondence_m: float = positive()
+    max_iterations: int = integer()
 
     def __post_init__(self) -> None:
-        require_positive("icp.levels", self, ("voxel_size_m", "max_correspondence_m"))
-        require_count("icp.levels", self, ("max_iterations",))
+        check_fields("icp.levels", self)
 
 
 def _default_levels() -> tuple[IcpLevel, ...]:
@@ -70,9 +64,10 @@ class IcpConfig:
     enabled: bool = True
     levels: tuple[IcpLevel, ...] = field(default_factory=_default_levels)
     robust_kernel: str = "tukey"
-    robust_kernel_scale: float = 0.5  # kernel width as a fraction of the level's gate
-    normal_radius_factor: float = 3.0  # normals at each level from this many voxels around
-    normal_max_neighbors: int = 30
+    robust_kernel_scale: float = positive(0.5)  # kernel width as a fraction of the level's gate
+    # Normals at each level from this many voxels around.
+    normal_radius_factor: float = positive(3.0)
+    normal_max_neighbors: int = integer(30)
     relative_fitness: float = 1e-7
     relative_rmse: float = 1e-7
     # Converged: one more finest-level iteration moves the overlap's centroid less than 10 um
@@ -81,14 +76,14 @@ class IcpConfig:
     converged_step_rad: float = 1e-4
     # Pair selection.
     max_pair_angle_rad: float = math.radians(60.0)
-    max_pairs_per_view: int = 6
-    overlap_distance_m: float = 0.01
-    min_overlap: float = 0.3
+    max_pairs_per_view: int = integer(6)
+    overlap_distance_m: float = positive(0.01)
+    min_overlap: float = fraction(0.3)
     # Edge checks (an edge failing one is pruned, with the reason recorded).
-    min_fitness: float = 0.3
-    max_inlier_rmse_m: float = 0.001
-    max_prior_translation_m: float = 0.02
-    max_prior_rotation_rad: float = math.radians(3.0)
+    min_fitness: float = fraction(0.3)
+    max_inlier_rmse_m: float = positive(0.001)
+    max_prior_translation_m: float = positive(0.02)
+    max_prior_rotation_rad: float = positive(math.radians(3.0))
 
     def __post_init__(self) -> None:
         if not self.levels:
@@ -96,20 +91,7 @@ class IcpConfig:
         require_choice("icp", "robust_kernel", self.robust_kernel, ROBUST_KERNELS)
         if not 0 < self.max_pair_angle_rad <= math.pi:
             raise ScannerError("icp.max_pair_angle_rad: must be in (0, pi]")
-        require_count("icp", self, ("max_pairs_per_view", "normal_max_neighbors"))
-        require_fraction("icp", self, ("min_overlap", "min_fitness"))
-        require_positive(
-            "icp",
-            self,
-            (
-                "normal_radius_factor",
-                "robust_kernel_scale",
-                "overlap_distance_m",
-                "max_inlier_rmse_m",
-                "max_prior_translation_m",
-                "max_prior_rotation_rad",
-            ),
-        )
+        check_fields("icp", self)
 
 
 @dataclass(frozen=True, eq=False)

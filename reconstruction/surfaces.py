@@ -18,7 +18,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from reconstruction.checks import require_count, require_non_negative, require_positive
+from reconstruction.checks import check_fields, integer, non_negative, positive
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import (
     FilteredCloud,
@@ -39,27 +39,27 @@ class SurfaceConfig:
     methods: tuple[str, ...] = ("poisson", "tsdf")
     # 1 mm: Poisson from 0.5 mm points was 4x slower and no more accurate on the synthetic
     # pebble (accuracy p90 0.08 mm either way).
-    fused_voxel_size_m: float = 0.001
+    fused_voxel_size_m: float = positive(0.001)
     # Poisson depth 9 over a 0.2 m object: ~0.4 mm cells, finer than the stereo noise.
     poisson_depth: int = 9
     # Density trimming (2 % in a prototype of this pipeline) punches holes in well-covered surfaces
     # too (356 holes on a fully covered synthetic pebble); trimming by distance to the data
     # removes what Poisson invents on the unseen side and keeps observed surfaces closed.
     poisson_density_quantile: float = 0.0
-    poisson_max_distance_m: float = 0.002
+    poisson_max_distance_m: float = positive(0.002)
     # 1 mm voxels: ~0.2 mm Chamfer in < 1 s in a prototype of this pipeline (24 views).
-    tsdf_voxel_size_m: float = 0.001
-    tsdf_truncation_voxels: float = 4.0
-    tsdf_depth_max_m: float = 1.5
-    tsdf_min_views: int = 1  # views that must have seen a voxel for it to be meshed
-    tsdf_block_count: int = 40000
+    tsdf_voxel_size_m: float = positive(0.001)
+    tsdf_truncation_voxels: float = positive(4.0)
+    tsdf_depth_max_m: float = positive(1.5)
+    tsdf_min_views: int = integer(1)  # views that must have seen a voxel for it to be meshed
+    tsdf_block_count: int = integer(40000)
     ball_pivoting_radii_m: tuple[float, ...] = (0.001, 0.002, 0.004)
     # Components with fewer triangles than this fraction of the largest one are debris.
     min_component_fraction: float = 0.02
     # Holes whose boundary fits in a sphere of this radius are closed: at 1 mm fused voxels the
     # data cannot show a hole that small, so it is a meshing artefact (Poisson leaves such
     # loops where its trimming cuts a single triangle out), not a feature of the object.
-    fill_holes_max_radius_m: float = 0.001
+    fill_holes_max_radius_m: float = non_negative(0.001)
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in SURFACE_METHODS]
@@ -68,25 +68,13 @@ class SurfaceConfig:
                 f"surfaces.methods: unknown {', '.join(unknown)}; valid: "
                 f"{', '.join(SURFACE_METHODS)}"
             )
-        require_positive(
-            "surfaces",
-            self,
-            (
-                "fused_voxel_size_m",
-                "poisson_max_distance_m",
-                "tsdf_voxel_size_m",
-                "tsdf_truncation_voxels",
-                "tsdf_depth_max_m",
-            ),
-        )
-        require_non_negative("surfaces", self, ("fill_holes_max_radius_m",))
+        check_fields("surfaces", self)
         if not 0 <= self.poisson_density_quantile < 1 or not 0 <= self.min_component_fraction < 1:
             raise ScannerError(
                 "surfaces: poisson_density_quantile and min_component_fraction in [0, 1)"
             )
         if not 4 <= self.poisson_depth <= 12:
             raise ScannerError("surfaces.poisson_depth: between 4 and 12")
-        require_count("surfaces", self, ("tsdf_min_views", "tsdf_block_count"))
         if not self.ball_pivoting_radii_m or min(self.ball_pivoting_radii_m) <= 0:
             raise ScannerError("surfaces.ball_pivoting_radii_m: positive radii")
 

@@ -15,7 +15,7 @@ import numpy as np
 import yaml
 
 from reconstruction.camera_model import StereoCamera, stereo_camera_from_dict, stereo_camera_to_dict
-from reconstruction.checks import require_count, require_non_negative
+from reconstruction.checks import check_fields, integer, non_negative
 from reconstruction.errors import ScannerError
 from reconstruction.transforms import make_pose, rotation_about
 
@@ -33,24 +33,14 @@ class ErrorModel:
     RX60's reach); sensor noise of 2 grey levels (8-bit), typical of a CCD at good exposure.
     """
 
-    seed: int = 0
-    handeye_translation_m: float = 0.003
-    handeye_rotation_rad: float = math.radians(1.0)
-    joint_offset_std_rad: float = math.radians(0.01)
-    image_noise_std: float = 2.0
+    seed: int = integer(0, minimum=0, maximum=MAX_SEED)
+    handeye_translation_m: float = non_negative(0.003)
+    handeye_rotation_rad: float = non_negative(math.radians(1.0))
+    joint_offset_std_rad: float = non_negative(math.radians(0.01))
+    image_noise_std: float = non_negative(2.0)
 
     def __post_init__(self) -> None:
-        require_count("error_model", self, ("seed",), minimum=0, maximum=MAX_SEED)
-        require_non_negative(
-            "error_model",
-            self,
-            (
-                "handeye_translation_m",
-                "handeye_rotation_rad",
-                "joint_offset_std_rad",
-                "image_noise_std",
-            ),
-        )
+        check_fields("error_model", self)
 
 
 @dataclass(frozen=True, eq=False)

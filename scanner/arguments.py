@@ -1,5 +1,5 @@
-"""Argument types shared by the subcommands' parsers: they turn a bad value into argparse's usage
-error naming the option (exit 2)."""
+"""Argument types shared by the subcommands' parsers (they turn a bad value into argparse's usage
+error naming the option, exit 2), and the options several subcommands have."""
 
 from __future__ import annotations
 
@@ -40,3 +40,36 @@ def for_flag(flag: str, apply: Callable):
         return apply()
     except ScannerError as e:
         raise ScannerError(f"{flag}: {e}") from None
+
+
+def add_output_arguments(
+    parser: argparse.ArgumentParser,
+    out_help: str,
+    force_help: str,
+    *,
+    required: bool = False,
+    **out_options,
+) -> None:
+    """--out, where the command writes, and --force, which lets it replace what is there;
+    `out_options` go to --out (argparse's dest, metavar)."""
+    parser.add_argument("--out", type=path_arg, required=required, help=out_help, **out_options)
+    parser.add_argument("--force", action="store_true", help=force_help)
+
+
+def add_seed_argument(parser: argparse.ArgumentParser, default: int | None = None) -> None:
+    """--seed of the simulated errors (robots.truth.ErrorModel)."""
+    parser.add_argument(
+        "--seed", type=int, default=default, help="seed of the simulated error model"
+    )
+
+
+def add_driver_argument(parser: argparse.ArgumentParser, what: str, note: str = "") -> None:
+    """--driver: real hardware instead of the Drake simulation (`what` runs on it; `note` ends
+    the help)."""
+    parser.add_argument(
+        "--driver",
+        type=name_arg,
+        metavar="MODULE:FACTORY",
+        help=f"{what} with real hardware: factory(config) returns robots.drivers.Hardware "
+        f"(default: the Drake simulation){note}",
+    )

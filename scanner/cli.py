@@ -7,7 +7,15 @@ import sys
 from pathlib import Path
 
 from reconstruction.errors import ScannerError
-from scanner.arguments import for_flag, name_arg, path_arg, positive_float
+from scanner.arguments import (
+    add_driver_argument,
+    add_output_arguments,
+    add_seed_argument,
+    for_flag,
+    name_arg,
+    path_arg,
+    positive_float,
+)
 from scanner.calibrate.arguments import add_calibrate_parser
 from scanner.exchange import add_export_parser, add_import_parser
 
@@ -55,12 +63,12 @@ def _add_scan_parser(sub) -> None:
         type=positive_float,
         help="distance of the rig from the scan centre in metres (default 0.5)",
     )
-    scan.add_argument(
-        "--out",
-        type=path_arg,
-        help="scan directory to create (default scans/OBJECT-TIMESTAMP)",
+    add_output_arguments(
+        scan,
+        "scan directory to create (default scans/OBJECT-TIMESTAMP)",
+        "replace an existing scan directory given with --out",
     )
-    scan.add_argument("--seed", type=int, help="seed of the simulated error model")
+    add_seed_argument(scan)
     scan.add_argument(
         "--max-extra-views",
         type=int,
@@ -80,17 +88,8 @@ def _add_scan_parser(sub) -> None:
         type=path_arg,
         help="calibration file from `scanner calibrate` (stereo model and hand-eye X_FC)",
     )
-    scan.add_argument(
-        "--driver",
-        type=name_arg,
-        metavar="MODULE:FACTORY",
-        help="scan with real hardware: factory(config) returns robots.drivers.Hardware "
-        "(default: the Drake simulation)",
-    )
+    add_driver_argument(scan, "scan")
     scan.add_argument("--resume", type=path_arg, metavar="DIR", help="continue an interrupted scan")
-    scan.add_argument(
-        "--force", action="store_true", help="replace an existing scan directory given with --out"
-    )
     scan.add_argument(
         "--meshcat",
         action="store_true",
@@ -122,13 +121,10 @@ def _add_reconstruct_parser(sub) -> None:
         type=path_arg,
         help="use this calibration's stereo model and X_FC instead of the scan's",
     )
-    reconstruct.add_argument(
-        "--out",
-        type=path_arg,
-        help="results folder (default SCAN_DIR/results, or results-N when that holds one already)",
-    )
-    reconstruct.add_argument(
-        "--force", action="store_true", help="replace the reconstruction already in --out"
+    add_output_arguments(
+        reconstruct,
+        "results folder (default SCAN_DIR/results, or results-N when that holds one already)",
+        "replace the reconstruction already in --out",
     )
     reconstruct.add_argument("--no-icp", action="store_true", help="poses from the robot only")
     reconstruct.add_argument(
@@ -150,12 +146,14 @@ def _add_merge_parser(sub) -> None:
         "An alignment that fails verification writes nothing and exits with code 3.",
     )
     merge.add_argument("scan_dirs", type=path_arg, nargs="+", metavar="SCAN_DIR")
-    merge.add_argument("--out", type=path_arg, required=True, help="results folder to create")
     merge.add_argument(
         "--config", type=path_arg, help="processing YAML; default: the first scan's settings"
     )
-    merge.add_argument(
-        "--force", action="store_true", help="replace the merged model already in --out"
+    add_output_arguments(
+        merge,
+        "results folder to create",
+        "replace the merged model already in --out",
+        required=True,
     )
 
 
@@ -170,7 +168,7 @@ def _add_preview_parser(sub) -> None:
         "--object", default="vase", help=f"built-in object ({BUILTIN_HELP}) or a mesh file"
     )
     preview.add_argument("--out", type=path_arg, default=Path("out/preview"), help="output folder")
-    preview.add_argument("--seed", type=int, default=0, help="seed of the simulated error model")
+    add_seed_argument(preview, default=0)
 
 
 def _scan(args: argparse.Namespace) -> int:

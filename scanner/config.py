@@ -11,7 +11,7 @@ from pathlib import Path
 
 from planners.planner import PlannerConfig
 from reconstruction.camera_model import StereoDesign
-from reconstruction.checks import require_count, require_non_negative, require_positive
+from reconstruction.checks import check_fields, integer, non_negative, positive
 from reconstruction.errors import ScannerError
 from reconstruction.pipeline import ReconstructionConfig
 from reconstruction.stereo.params import StereoParams
@@ -29,13 +29,12 @@ class MachineConfig:
     """Decision-maker retries and settling: the arm counts as at rest when every joint is
     within settle_tolerance_rad of the goal, polled until settle_timeout_s."""
 
-    capture_retries: int = 2
-    settle_tolerance_rad: float = 1e-3
-    settle_timeout_s: float = 5.0
+    capture_retries: int = integer(2, minimum=0)
+    settle_tolerance_rad: float = positive(1e-3)
+    settle_timeout_s: float = positive(5.0)
 
     def __post_init__(self) -> None:
-        require_count("machine", self, ("capture_retries",), minimum=0)
-        require_positive("machine", self, ("settle_tolerance_rad", "settle_timeout_s"))
+        check_fields("machine", self)
 
 
 @dataclass(frozen=True)
@@ -45,19 +44,18 @@ class ProcessingConfig:
     stereo: StereoParams = field(default_factory=StereoParams)
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     # Points closer than this to the robot, tool, rod or cell primitives are removed.
-    remove_margin_m: float = 0.01
+    remove_margin_m: float = non_negative(0.01)
     # The surface whose metrics are the report's headline keys.
     primary_surface: str = "poisson"
     mesh_formats: tuple[str, ...] = (".ply",)
     # Surface samples for the metrics (area-uniform on the truth and on each result).
-    metric_samples: int = 200_000
+    metric_samples: int = integer(200_000, minimum=1000)
 
     def __post_init__(self) -> None:
         bad = [f for f in self.mesh_formats if f not in MESH_SUFFIXES]
         if bad:
             raise ScannerError(f"processing.mesh_formats: {bad} not in {', '.join(MESH_SUFFIXES)}")
-        require_non_negative("processing", self, ("remove_margin_m",))
-        require_count("processing", self, ("metric_samples",), minimum=1000)
+        check_fields("processing", self)
 
 
 MAX_HANGINGS = 6
@@ -85,10 +83,10 @@ class ScanConfig:
     driver: str | None = None
     # Passes over the object, re-hung (turned) between them; the passes are aligned and merged
     # into one model. One hanging never sees the top of a hung object.
-    hangings: int = 1
+    hangings: int = integer(1, maximum=MAX_HANGINGS)
 
     def __post_init__(self) -> None:
-        require_count("scan", self, ("hangings",), minimum=1, maximum=MAX_HANGINGS)
+        check_fields("scan", self)
 
     @property
     def scan_center_m(self) -> tuple[float, float, float]:

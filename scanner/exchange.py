@@ -16,7 +16,7 @@ from contextlib import suppress
 from pathlib import Path
 
 from reconstruction.errors import ScannerError
-from scanner.arguments import for_flag, name_arg, path_arg
+from scanner.arguments import add_output_arguments, for_flag, name_arg, path_arg
 
 EXPORT_FORMATS = ("opencv", "ros", "ros-tf")
 IMPORT_FORMATS = ("opencv", "ros")
@@ -47,9 +47,11 @@ def add_export_parser(sub) -> None:
         "calibration", type=path_arg, metavar="CALIBRATION_FILE", help="from `scanner calibrate`"
     )
     export.add_argument("--format", type=name_arg, required=True, help="opencv, ros or ros-tf")
-    export.add_argument("--out", type=path_arg, required=True, help="folder to write into")
-    export.add_argument(
-        "--force", action="store_true", help="replace files of this format already in --out"
+    add_output_arguments(
+        export,
+        "folder to write into",
+        "replace files of this format already in --out",
+        required=True,
     )
     export.add_argument(
         "--parent-frame", type=name_arg, help="ros-tf: the flange frame (default tool0)"
@@ -72,15 +74,14 @@ def add_import_parser(sub) -> None:
     )
     imp.add_argument("folder", type=path_arg, metavar="DIR", help="folder holding the files")
     imp.add_argument("--format", type=name_arg, required=True, help="opencv or ros")
-    imp.add_argument(
-        "--out",
-        dest="out_file",
-        type=path_arg,
+    add_output_arguments(
+        imp,
+        "calibration file to write",
+        "replace an existing --out file",
         required=True,
+        dest="out_file",
         metavar="FILE",
-        help="calibration file to write",
     )
-    imp.add_argument("--force", action="store_true", help="replace an existing --out file")
     imp.add_argument(
         "--hand-eye",
         type=path_arg,

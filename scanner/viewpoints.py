@@ -22,11 +22,12 @@ import numpy as np
 
 from planners.ik import Viewpoint
 from reconstruction.checks import (
-    require_at_most,
+    check_fields,
+    fraction,
+    integer,
+    positive,
     require_choice,
     require_count,
-    require_fraction,
-    require_positive,
 )
 from reconstruction.errors import ScannerError
 from scanner.sampling import farthest_point_sample, fibonacci_directions
@@ -41,37 +42,31 @@ MAX_VIEWS = 1000
 class ViewpointConfig:
     """Where the views go. Angles in radians, distances in metres."""
 
-    count: int = 24
-    radius_m: float = 0.5
+    count: int = integer(24, maximum=MAX_VIEWS)
+    # Far beyond the RX60's reach (0.67 m from the shoulder): a typo, not a plan.
+    radius_m: float = positive(0.5, at_most=3.0)
     center_m: tuple[float, float, float] | None = None  # None: the configured object centre
     distribution: str = "reachable"
     elevation_min_rad: float = math.radians(-75.0)
     elevation_max_rad: float = math.radians(75.0)
     candidates: int = 600
-    roll_candidates: int = 12
-    options_per_view: int = 6
-    replace_within_rad: float = math.radians(20.0)
-    lloyd_iterations: int = 10
+    roll_candidates: int = integer(12)
+    options_per_view: int = integer(6)
+    replace_within_rad: float = positive(math.radians(20.0))
+    lloyd_iterations: int = integer(10, minimum=0)
     # Next-best views: after a hanging's planned views, up to this many more, each where the
     # current model's unseen surface is best in view; stop when the best would show less than
     # min_gain of the closed surface.
-    max_extra_views: int = 0
-    min_gain: float = 0.01
+    max_extra_views: int = integer(0, minimum=0, maximum=MAX_VIEWS)
+    min_gain: float = fraction(0.01)
 
     def __post_init__(self) -> None:
         if self.count < 1:
             raise ScannerError(f"views.count: at least 1 view is needed, got {self.count}")
-        require_count("views", self, ("count",), maximum=MAX_VIEWS)
-        require_positive("views", self, ("radius_m", "replace_within_rad"))
-        # Far beyond the RX60's reach (0.67 m from the shoulder): a typo, not a plan.
-        require_at_most("views", self, ("radius_m",), 3.0)
+        check_fields("views", self)
         require_choice("views", "distribution", self.distribution, DISTRIBUTIONS)
         if not -math.pi / 2 <= self.elevation_min_rad < self.elevation_max_rad <= math.pi / 2:
             raise ScannerError("views.elevation_*_rad: need -pi/2 <= min < max <= pi/2")
-        require_count("views", self, ("roll_candidates", "options_per_view"))
-        require_count("views", self, ("lloyd_iterations",), minimum=0)
-        require_count("views", self, ("max_extra_views",), minimum=0, maximum=MAX_VIEWS)
-        require_fraction("views", self, ("min_gain",))
         require_count("views", self, ("candidates",), minimum=self.count)
 
 

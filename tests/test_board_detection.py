@@ -14,6 +14,7 @@ from reconstruction.calibration.boards import (
     detect_board_or_reason,
 )
 from reconstruction.errors import ScannerError
+from tests.board_views import warped_board
 from tests.conftest import shared_data
 
 OPENCV_STEREO = "real/stereo_calibration_opencv_sample"
@@ -23,24 +24,6 @@ OPENCV_BOARD = BoardSpec("chessboard", 10, 7, 0.025)
 BOARD = BoardSpec("chessboard", 10, 7, 0.02)  # orientation fixed by its colours
 SYMMETRIC = BoardSpec("chessboard", 9, 7, 0.02)  # the same after a 180-degree turn
 SQUARE = BoardSpec("chessboard", 8, 8, 0.02)  # the same after a 90-degree turn
-
-
-def _warped(spec, px_per_spacing=40):
-    """The pattern seen in perspective, and the exact pixel of every corner (OpenCV centres)."""
-    pattern = board_image(spec, px_per_spacing=px_per_spacing)
-    h, w = pattern.image.shape
-    src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
-    dst = np.float32([[60, 40], [60 + 0.95 * w, 70], [40 + w, 30 + 0.9 * h], [30, 20 + h]])
-    H = cv2.getPerspectiveTransform(src, dst)
-    size = (int(w * 1.2) + 80, int(h * 1.2) + 80)
-    # Pixel-edge coordinates (pattern) -> OpenCV pixel-centre coordinates: -0.5 on both sides.
-    shift = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1.0]])
-    unshift = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
-    image = cv2.warpPerspective(
-        pattern.image, shift @ H @ unshift, size, flags=cv2.INTER_AREA, borderValue=255
-    )
-    edges = pattern.origin_px + spec.object_points()[:, :2] * pattern.px_per_m
-    return image, cv2.perspectiveTransform(edges[None].astype(np.float64), H)[0] - 0.5
 
 
 def _on_canvas(image, x, y, size=(640, 480)):
@@ -80,7 +63,7 @@ def test_every_image_of_opencv_stereo_sample_is_found_in_one_order():
 def test_every_stage_finds_a_render_accurately_in_the_same_order(spec, monkeypatch):
     """SB (accuracy mode) is the most precise; the classic detector refined by cornerSubPix is
     biased by ~0.1 px on rendered edges, and the same from a downscaled search."""
-    image, expected = _warped(spec)
+    image, expected = warped_board(spec)
     pattern = (spec.cols - 1, spec.rows - 1)
     # The render is small; make the downscaled stage run at about half its size.
     monkeypatch.setattr(boards, "_CLASSIC_DOWNSCALED_PX", max(image.shape) // 2)

@@ -34,6 +34,7 @@ from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.camera_model import PinholeCamera, default_stereo_camera, project_points
 from reconstruction.errors import ScannerError
 from reconstruction.transforms import invert, make_pose, pose_difference, transform_points
+from tests.board_views import warped_board
 
 TRANSLATION_TOL_M = 1e-6  # noise-free synthetic data: solvers are exact to numerical precision
 ROTATION_TOL_RAD = 1e-6
@@ -58,24 +59,10 @@ def _X(rotvec, t):
 def test_detection_on_the_printed_pattern_matches_the_board_geometry(spec, median_px):
     """Detect each kind on its own pattern image, warped by a homography: the detected pixels
     are the board points mapped through the same homography."""
-    pattern = board_image(spec, px_per_spacing=40)
-    h, w = pattern.image.shape
-    src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
-    dst = np.float32([[60, 40], [60 + 0.95 * w, 70], [40 + w, 30 + 0.9 * h], [30, 20 + h]])
-    H = cv2.getPerspectiveTransform(src, dst)
-    size = (int(w * 1.2) + 80, int(h * 1.2) + 80)
-    # Pixel-edge coordinates (pattern) -> OpenCV pixel-centre coordinates: -0.5 on both sides.
-    shift = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1.0]])
-    unshift = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
-    warped = cv2.warpPerspective(
-        pattern.image, shift @ H @ unshift, size, flags=cv2.INTER_AREA, borderValue=255
-    )
+    warped, corners = warped_board(spec)
     detection = detect_board(spec, warped)
     assert detection is not None
-    p_B = spec.object_points()[detection.ids, :2]
-    edges = pattern.origin_px + p_B * pattern.px_per_m
-    expected = cv2.perspectiveTransform(edges[None].astype(np.float64), H)[0] - 0.5
-    err = np.linalg.norm(detection.pixels - expected, axis=1)
+    err = np.linalg.norm(detection.pixels - corners[detection.ids], axis=1)
     assert len(detection) >= 0.8 * spec.point_count
     assert np.median(err) < median_px
 
@@ -291,27 +278,25 @@ def test_a_spreadsheet_byte_order_mark_and_a_header_in_a_single_pose_file(tmp_pa
     np.testing.assert_allclose(read_pose_file(path, fmt), expected, atol=1e-12)
 
 
-def test_bad_pose_rows_name_the_file_and_line_after_headers_and_comments(tmp_path):
-    fmt = pose_format("ur")
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        # Line 4 is the bad one: the header, a comment and a blank line come first.
+        (b"x,y,z,rx,ry,rz\n# run 1\n\n0.1,0.2,0.3,0,0,O.1\n", " line 4: not a list of numbers"),
+        # Only the first line can be a header: text further down is an error, not skipped.
+        (b"x,y,z,rx,ry,rz\n0.1,0.2,0.3,0,0,0.1\nend of list\n", " line 3: not a list of numbers"),
+        # A first line mixing numbers and text is a bad row, not a header.
+        (b"pose 1: 0.1 0.2 0.3 0 0 0.1\n", " line 1: not a list of numbers"),
+        (b"0.1;0.2;0.3;0;0;0.1\r\n0.1;0.2;0.3;0;0\r\n", " line 2: 5 columns"),
+        # UTF-16, as some editors save "Unicode".
+        (b"\xff\xfe0\x00.\x001\x00", ": not UTF-8 text"),
+    ],
+)
+def test_bad_pose_rows_name_the_file_and_line_after_headers_and_comments(tmp_path, data, message):
     path = tmp_path / "poses.csv"
-    # Line 4 is the bad one: the header, a comment and a blank line come first.
-    path.write_text("x,y,z,rx,ry,rz\n# run 1\n\n0.1,0.2,0.3,0,0,O.1\n")
-    with pytest.raises(ScannerError, match=r"poses.csv line 4: not a list of numbers"):
-        read_pose_list(path, fmt)
-    # Only the first line can be a header: text further down is an error, not skipped.
-    path.write_text("x,y,z,rx,ry,rz\n0.1,0.2,0.3,0,0,0.1\nend of list\n")
-    with pytest.raises(ScannerError, match=r"poses.csv line 3: not a list of numbers"):
-        read_pose_list(path, fmt)
-    # A first line mixing numbers and text is a bad row, not a header.
-    path.write_text("pose 1: 0.1 0.2 0.3 0 0 0.1\n")
-    with pytest.raises(ScannerError, match=r"poses.csv line 1: not a list of numbers"):
-        read_pose_list(path, fmt)
-    path.write_text("0.1;0.2;0.3;0;0;0.1\r\n0.1;0.2;0.3;0;0\r\n")
-    with pytest.raises(ScannerError, match=r"poses.csv line 2: 5 columns"):
-        read_pose_list(path, fmt)
-    path.write_bytes(b"\xff\xfe0\x00.\x001\x00")  # UTF-16, as some editors save "Unicode"
-    with pytest.raises(ScannerError, match=r"poses.csv: not UTF-8 text"):
-        read_pose_list(path, fmt)
+    path.write_bytes(data)
+    with pytest.raises(ScannerError, match="poses.csv" + message):
+        read_pose_list(path, pose_format("ur"))
 
 
 def test_a_pose_count_that_does_not_match_the_images_names_both(tmp_path):

@@ -162,29 +162,49 @@ def _replace_line(path, old: str, new: str) -> None:
     path.write_text(text.replace(old, new, 1))
 
 
-@pytest.mark.parametrize(
-    "name, old, new, message",
-    [
-        ("intrinsics.yml", "M1:", "X1:", r"intrinsics\.yml: missing key 'M1'"),
-        (
-            "intrinsics.yml",
-            "rows: 3\n   cols: 3",
-            "rows: 1\n   cols: 9",
-            r"M1 is 1x9, expected 3x3",
-        ),
-        ("intrinsics.yml", "D1:", "D1: 5\nX:", r"intrinsics\.yml: D1 is not an OpenCV matrix"),
-        ("extrinsics.yml", "T:", "U:", r"extrinsics\.yml: missing key 'T'"),
-        ("extrinsics.yml", "rows: 3\n   cols: 1", "rows: 2\n   cols: 1", r"T is not an Op.*nelems"),
-        ("extrinsics.yml", "length_unit: m", "length_unit: parsec", r"length_unit: length unit"),
-        ("intrinsics.yml", "image_width: 1280", "image_width: -3", r"image_width must be"),
-        ("extrinsics.yml", "R: !!opencv-matrix", "R: [1, 2", r"extrinsics\.yml: not an OpenCV"),
+STEREO_FORMATS = {
+    "opencv": (exchange.write_opencv_stereo, exchange.read_opencv_stereo),
+    "ros": (exchange.write_ros_camera_info, exchange.read_ros_camera_info),
+}
+# Damaged files by format and file: (text in the written file, its replacement, the error naming
+# the file and key).
+DAMAGED_FILES = {
+    ("opencv", "intrinsics.yml"): [
+        ("M1:", "X1:", r"intrinsics\.yml: missing key 'M1'"),
+        ("rows: 3\n   cols: 3", "rows: 1\n   cols: 9", r"M1 is 1x9, expected 3x3"),
+        ("D1:", "D1: 5\nX:", r"intrinsics\.yml: D1 is not an OpenCV matrix"),
+        ("image_width: 1280", "image_width: -3", r"image_width must be"),
     ],
+    ("opencv", "extrinsics.yml"): [
+        ("T:", "U:", r"extrinsics\.yml: missing key 'T'"),
+        ("rows: 3\n   cols: 1", "rows: 2\n   cols: 1", r"T is not an Op.*nelems"),
+        ("length_unit: m", "length_unit: parsec", r"length_unit: length unit"),
+        ("R: !!opencv-matrix", "R: [1, 2", r"extrinsics\.yml: not an OpenCV"),
+    ],
+    ("ros", "left.yaml"): [
+        ("camera_matrix:\n  rows: 3", "camera_matrix:\n  rows: 2", r"camera_matrix is 2x3"),
+        ("distortion_model: plumb_bob", "distortion_model: equidistant", r"equidistant"),
+        ("image_height: 960", "image_height: tall", r"left\.yaml: image_height must be"),
+        ("rows: 1\n  cols: 5", "rows: 1\n  cols: 4", r"distortion_coefficients has 5"),
+    ],
+    ("ros", "right.yaml"): [
+        ("projection_matrix:", "projection:", r"right\.yaml: missing key 'projection_"),
+        ("image_width: 1280", "image_width: 640", r"right\.yaml: image_width/image_h"),
+        ("camera_name: right", "camera_name: [", r"right\.yaml: ROS camera_info is not"),
+    ],
+}
+
+
+@pytest.mark.parametrize(
+    "fmt, name, old, new, message",
+    [(fmt, name, *case) for (fmt, name), cases in DAMAGED_FILES.items() for case in cases],
 )
-def test_opencv_bad_files_name_file_and_key(stereo, tmp_path, name, old, new, message):
-    exchange.write_opencv_stereo(stereo, tmp_path)
+def test_bad_files_name_file_and_key(stereo, tmp_path, fmt, name, old, new, message):
+    write, read = STEREO_FORMATS[fmt]
+    write(stereo, tmp_path)
     _replace_line(tmp_path / name, old, new)
     with pytest.raises(ScannerError, match=message):
-        exchange.read_opencv_stereo(tmp_path)
+        read(tmp_path)
 
 
 def test_opencv_unreadable_files(stereo, tmp_path):
@@ -245,25 +265,6 @@ def test_ros_files_have_camera_info_keys_and_shapes(stereo, tmp_path):
     # ROS: the left camera's Tx is 0, the right one's is -fx' * baseline (metres).
     assert P1[0, 3] == 0 and P1[1, 3] == 0
     assert np.isclose(P2[0, 3], -P2[0, 0] * stereo.baseline_m, rtol=1e-12, atol=0)
-
-
-@pytest.mark.parametrize(
-    "side, old, new, message",
-    [
-        ("right", "projection_matrix:", "projection:", r"right\.yaml: missing key 'projection_"),
-        ("left", "camera_matrix:\n  rows: 3", "camera_matrix:\n  rows: 2", r"camera_matrix is 2x3"),
-        ("left", "distortion_model: plumb_bob", "distortion_model: equidistant", r"equidistant"),
-        ("right", "image_width: 1280", "image_width: 640", r"right\.yaml: image_width/image_h"),
-        ("left", "image_height: 960", "image_height: tall", r"left\.yaml: image_height must be"),
-        ("left", "rows: 1\n  cols: 5", "rows: 1\n  cols: 4", r"distortion_coefficients has 5"),
-        ("right", "camera_name: right", "camera_name: [", r"right\.yaml: ROS camera_info is not"),
-    ],
-)
-def test_ros_bad_files_name_file_and_key(stereo, tmp_path, side, old, new, message):
-    exchange.write_ros_camera_info(stereo, tmp_path)
-    _replace_line(tmp_path / f"{side}.yaml", old, new)
-    with pytest.raises(ScannerError, match=message):
-        exchange.read_ros_camera_info(tmp_path)
 
 
 def test_ros_pair_without_baseline_is_refused(stereo, tmp_path):

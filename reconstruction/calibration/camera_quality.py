@@ -17,7 +17,7 @@ import numpy as np
 
 from reconstruction.calibration.boards import Detection
 from reconstruction.calibration.observations import PoseObservation
-from reconstruction.camera_model import StereoCamera
+from reconstruction.camera_model import PinholeCamera, StereoCamera
 from reconstruction.stereo.rectification import compute_rectification
 
 
@@ -31,6 +31,16 @@ class EpipolarError:
     corners: int
 
 
+def _rectified_px(
+    pixels: np.ndarray, camera: PinholeCamera, R: np.ndarray, P: np.ndarray
+) -> np.ndarray:
+    """(N, 2) pixels of one camera, undistorted and mapped into its rectified image (R, P from
+    cv2.stereoRectify)."""
+    return cv2.undistortPoints(
+        pixels.reshape(-1, 1, 2), camera.K, camera.distortion, R=R, P=P
+    ).reshape(-1, 2)
+
+
 def epipolar_error(stereo: StereoCamera, observations: Sequence[PoseObservation]) -> EpipolarError:
     """The row disagreement of common corners after undistortion and rectification."""
     rect = compute_rectification(stereo)
@@ -41,20 +51,8 @@ def epipolar_error(stereo: StereoCamera, observations: Sequence[PoseObservation]
         _, il, ir = np.intersect1d(o.left.ids, o.right.ids, return_indices=True)
         if len(il) == 0:
             continue
-        left = cv2.undistortPoints(
-            o.left.pixels[il].reshape(-1, 1, 2),
-            stereo.left.K,
-            stereo.left.distortion,
-            R=rect.R1,
-            P=rect.P1,
-        ).reshape(-1, 2)
-        right = cv2.undistortPoints(
-            o.right.pixels[ir].reshape(-1, 1, 2),
-            stereo.right.K,
-            stereo.right.distortion,
-            R=rect.R2,
-            P=rect.P2,
-        ).reshape(-1, 2)
+        left = _rectified_px(o.left.pixels[il], stereo.left, rect.R1, rect.P1)
+        right = _rectified_px(o.right.pixels[ir], stereo.right, rect.R2, rect.P2)
         rows.append(np.abs(left[:, 1] - right[:, 1]))
     if not rows:
         return EpipolarError(float("nan"), float("nan"), float("nan"), 0)

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from reconstruction.camera_model import StereoCamera
-from reconstruction.checks import require_count, require_positive
+from reconstruction.checks import check_fields, integer, positive
 from reconstruction.errors import ScannerError
 from reconstruction.transforms import make_pose, transform_points
 
@@ -34,20 +34,19 @@ class MarkerDetectionSettings:
     """KTH values: T = 20 grey levels, a 3x3 box filter, 80 % of the maximum; plus the sub-pixel
     centroid's saturation (see below)."""
 
-    difference_threshold: float = 20.0
-    box_filter_px: int = 3
+    difference_threshold: float = positive(20.0)
+    box_filter_px: int = integer(3)
     accept_fraction: float = 0.8
-    min_pixels: int = 3
+    min_pixels: int = integer(3)
     # Mean frame difference (grey levels) above which a pixel counts fully in the centroid; below
     # it, in proportion (anti-aliased edge). The centre is the silhouette's, not the shading's:
     # a lit sphere is brighter towards its light, which shifted a difference-weighted centroid
     # by 0.3-0.6 px (2.3 mm of depth at 1 m) in the simulator.
-    saturation_grey: float = 60.0
+    saturation_grey: float = positive(60.0)
 
     def __post_init__(self) -> None:
         section = "eye_to_hand.detection"
-        require_count(section, self, ("box_filter_px", "min_pixels"))
-        require_positive(section, self, ("difference_threshold", "saturation_grey"))
+        check_fields(section, self)
         if not 0 < self.accept_fraction <= 1:
             raise ScannerError(f"{section}.accept_fraction: must be in (0, 1]")
 

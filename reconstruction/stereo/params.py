@@ -21,7 +21,7 @@ from dataclasses import dataclass, fields
 
 import cv2
 
-from reconstruction.checks import require_choice, require_count, require_non_negative
+from reconstruction.checks import check_fields, integer, non_negative, require_choice
 from reconstruction.errors import ScannerError
 
 SGBM_MODES = {
@@ -50,14 +50,14 @@ class StereoParams:
     p1: float | None = None
     p2: float | None = None
     # The best matching cost must beat the second best by this margin.
-    uniqueness_ratio_percent: int = 10
+    uniqueness_ratio_percent: int = integer(10, minimum=0)
     # Connected regions smaller than this many pixels whose disparity varies by at most
     # speckle_range_px are removed (0 = off).
-    speckle_window_px: int = 100
-    speckle_range_px: int = 2
+    speckle_window_px: int = integer(100, minimum=0)
+    speckle_range_px: int = integer(2, minimum=0)
     # OpenCV's internal left-right check from the same cost volume (cheap; OpenCV 4 runs it with
-    # at least 1 px even when asked to switch it off, measured).
-    disp12_max_diff_px: int = 1
+    # at least 1 px even when asked to switch it off, measured; so 0 is refused).
+    disp12_max_diff_px: int = integer(1)
     # "SGBM" (5 directions), "HH" (8 directions, full-image memory), "HH4" or "3WAY" (fastest);
     # 3WAY by measurement (module docstring).
     mode: str = "3WAY"
@@ -79,21 +79,21 @@ class StereoParams:
     # background false-valid 0.13 % (vase) / 0.16 % (bracket), 3.9-4.0 % without the filter;
     # the 24-view bunny's observed-surface Chamfer 0.234 mm ("reject": 0.237 mm).
     texture_window_px: int = 9
-    texture_min_std_levels: float = 4.0
+    texture_min_std_levels: float = non_negative(4.0)
     low_texture: str = "supported"
-    support_tolerance_px: float = 2.0
+    support_tolerance_px: float = non_negative(2.0)
     support_min_fraction: float = 0.5
     support_anchor_erode_px: int = 3
     # Low-texture pixels without a disparity in a connected gap of this many pixels or more
     # are background: a band of half a texture window next to them goes (SGBM's fattening).
-    support_min_gap_px: int = 20
+    support_min_gap_px: int = integer(20, minimum=0)
     # Pixels whose window holds valid disparities further apart than max_jump_px are rejected
     # (0 = off): the fattened band at depth steps. 8 px is a 13 mm step at 0.5 m; a 3 px window
     # matches the 3 px block, which blurs a step over about one pixel on each side.
     jump_window_px: int = 3
-    max_jump_px: float = 8.0
+    max_jump_px: float = non_negative(8.0)
     # Clouds keep every n-th row and column (the disparity image is always dense).
-    subsample_step_px: int = 1
+    subsample_step_px: int = integer(1)
 
     def __post_init__(self) -> None:
         require_choice("stereo", "mode", self.mode, SGBM_MODES)
@@ -107,22 +107,7 @@ class StereoParams:
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1 and value % 2 == 1):
                 raise ScannerError(f"stereo.{name}: must be an odd positive integer, got {value}")
-        require_count(
-            "stereo",
-            self,
-            (
-                "uniqueness_ratio_percent",
-                "speckle_window_px",
-                "speckle_range_px",
-                "support_min_gap_px",
-            ),
-            minimum=0,
-        )
-        # OpenCV cannot switch its internal left-right check off.
-        require_count("stereo", self, ("disp12_max_diff_px", "subsample_step_px"))
-        require_non_negative(
-            "stereo", self, ("texture_min_std_levels", "max_jump_px", "support_tolerance_px")
-        )
+        check_fields("stereo", self)
         if not 0.0 <= self.support_min_fraction <= 1.0:
             raise ScannerError(
                 f"stereo.support_min_fraction: must be within 0..1, got {self.support_min_fraction}"

@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import argparse
 
-from scanner.arguments import name_arg, path_arg, positive_float
+from scanner.arguments import (
+    add_driver_argument,
+    add_output_arguments,
+    add_seed_argument,
+    name_arg,
+    path_arg,
+    positive_float,
+)
 
 
 def add_calibrate_parser(sub) -> None:
@@ -26,25 +33,20 @@ def add_calibrate_parser(sub) -> None:
 def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
     # Names are validated by the calibration code (one-line errors listing the valid ones), so
     # no argparse `choices` here.
-    calibrate.add_argument("--out", type=path_arg, help="calibration directory")
+    add_output_arguments(calibrate, "calibration directory", "replace an existing --out")
     calibrate.add_argument("--config", type=path_arg, help="calibration YAML file")
-    calibrate.add_argument("--force", action="store_true", help="replace an existing --out")
     calibrate.add_argument(
         "--resume",
         type=path_arg,
         metavar="DIR",
         help="finish an interrupted eye-in-hand run: capture the stations it lacks, then solve",
     )
-    calibrate.add_argument("--seed", type=int, help="seed of the simulated errors")
+    add_seed_argument(calibrate)
     calibrate.add_argument(
         "--stations", type=int, help="number of board views to take (default 20)"
     )
-    calibrate.add_argument(
-        "--driver",
-        type=name_arg,
-        metavar="MODULE:FACTORY",
-        help="eye-in-hand on real hardware (see `scan --driver`); the board stands where the "
-        "configuration's placement says",
+    add_driver_argument(
+        calibrate, "eye-in-hand", "; the board stands where the configuration's placement says"
     )
 
 

@@ -11,7 +11,7 @@ from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.eye_to_hand import MarkerDetectionSettings
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.camera_model import StereoDesign
-from reconstruction.checks import require_at_most, require_count, require_positive
+from reconstruction.checks import check_fields, integer, positive
 from reconstruction.errors import ScannerError
 from robots.blinking_marker import MarkerConfig
 from robots.calibration_board import BoardPlacement
@@ -44,20 +44,17 @@ class EyeToHandConfig:
     marker: MarkerConfig = field(default_factory=MarkerConfig)
     grid_center_m: tuple[float, float, float] = (0.50, 0.05, 0.50)
     grid_size_m: tuple[float, float, float] = (0.2, 0.3, 0.2)
-    grid_spacing_m: float = 0.1
-    held_out: int = 100
+    grid_spacing_m: float = positive(0.1, at_most=1.0)
+    held_out: int = integer(100, minimum=0, maximum=10_000)
     frames: int = 20
     detection: MarkerDetectionSettings = field(default_factory=MarkerDetectionSettings)
     max_residual_m: float = 0.003
-    seed: int = 0
+    seed: int = integer(0, minimum=0, maximum=MAX_SEED)
 
     def __post_init__(self) -> None:
         if self.frames < 2:
             raise ScannerError("eye_to_hand.frames: frame differencing needs at least 2 frames")
-        require_count("eye_to_hand", self, ("held_out",), minimum=0, maximum=10_000)
-        require_count("eye_to_hand", self, ("seed",), minimum=0, maximum=MAX_SEED)
-        require_positive("eye_to_hand", self, ("grid_spacing_m",))
-        require_at_most("eye_to_hand", self, ("grid_spacing_m",), 1.0)
+        check_fields("eye_to_hand", self)
         if any(s < 0 for s in self.grid_size_m):
             raise ScannerError("eye_to_hand.grid_size_m: sizes must be >= 0")
 

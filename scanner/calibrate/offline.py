@@ -127,7 +127,7 @@ def cameras_only_images(root: Path, options: OfflineOptions) -> list[Path] | Non
     """The images of a foreign folder that has no robot poses at all (no --pose-file, no pose
     file beside any image): a camera-only calibration. None when there are poses."""
     root = Path(root)
-    if (root / "scan.yaml").is_file() or options.pose_file is not None:
+    if not root.is_dir() or (root / "scan.yaml").is_file() or options.pose_file is not None:
         return None
     images = _images(root)
     if any((root / (image.stem + options.pose_suffix)).is_file() for image in images):

@@ -21,7 +21,7 @@ import numpy as np
 from planners.ik import Viewpoint, camera_pose, rig_centre_offset
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.camera_model import StereoCamera, project_points
-from reconstruction.checks import require_count, require_non_negative
+from reconstruction.checks import check_fields, integer, non_negative, require_count
 from reconstruction.errors import ScannerError
 from reconstruction.transforms import invert, rotation_angles_rad, transform_points
 from scanner.sampling import farthest_point_sample
@@ -33,16 +33,16 @@ ReachableFn = Callable[[Viewpoint], list[np.ndarray]]
 class StationConfig:
     """Calibration stations (units in the names)."""
 
-    count: int = 20
+    count: int = integer(20, minimum=3, maximum=1000)
     distance_min_m: float = 0.35
     distance_max_m: float = 0.50
     max_tilt_rad: float = math.radians(45.0)
-    max_roll_rad: float = math.radians(90.0)
-    target_jitter_m: float = 0.02
+    max_roll_rad: float = non_negative(math.radians(90.0))
+    target_jitter_m: float = non_negative(0.02)
     candidates: int = 800
-    image_margin_px: float = 40.0
+    image_margin_px: float = non_negative(40.0)
     # Farthest-point metric: rotation angle (rad) + this weight x distance (m).
-    position_weight_rad_per_m: float = 2.0
+    position_weight_rad_per_m: float = non_negative(2.0)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -54,13 +54,8 @@ class StationConfig:
             raise ScannerError("stations: need 0 < distance_min_m <= distance_max_m")
         if not 0 <= self.max_tilt_rad < math.pi / 2:
             raise ScannerError("stations.max_tilt_rad: must be in [0, pi/2)")
-        require_count("stations", self, ("count",), minimum=3, maximum=1000)
+        check_fields("stations", self)
         require_count("stations", self, ("candidates",), minimum=self.count)
-        require_non_negative(
-            "stations",
-            self,
-            ("max_roll_rad", "target_jitter_m", "image_margin_px", "position_weight_rad_per_m"),
-        )
 
 
 @dataclass(frozen=True, eq=False)
