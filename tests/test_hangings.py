@@ -216,6 +216,9 @@ def test_a_two_hanging_scan_is_aligned_and_sees_the_whole_object(two_hangings):
     # At 640x480 the stereo noise is about twice the product's (1280x960; the 0.5 mm /
     # 0.2 deg targets are measured there by scripts/bench_complete.py).
     assert r["alignment_error_mm"] < 1.0 and r["alignment_error_deg"] < 0.5
+    # One X_FC shared by both hangings, corrected and diagnosed as in a single-hanging scan.
+    assert r["handeye_converged"] is True and r["handeye_diagnosis"]["failures"] == []
+    assert r["handeye_error_mm"] < 1.0 and r["handeye_error_deg"] < 0.2
     # Both hangings together see (nearly) all of the object; one alone sees about 70 %.
     assert r["observed_fraction"] > 0.95 and r["completeness_2mm"] > 0.9
     assert abs(r["coverage_estimate"] - r["observed_fraction"]) < 0.05
