@@ -18,8 +18,8 @@ Pipeline (`calibrate_hand_eye`):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -140,9 +140,9 @@ def image_noise_px(
     Why the final refinement weighs the images with this rather than the configured
     `pixel_sigma_px`: the refinement balances the images against the robot-pose prior, and
     with a free correction per pose the images leave only detection noise and lens-model
-    error, which this measures. A sigma ten times too large (0.3 px configured, 0.03 px on the
-    simulated chessboard and on the real circle grid) weighs the images a hundred times too
-    little; along what one view measures weakly (distance, tilt traded against sideways
+    error, which this measures. A sigma ten times too large (0.3 px configured, 0.02-0.03 px
+    measured on the simulated chessboard and on a real circle grid) weighs the images a hundred
+    times too little; along what one view measures weakly (distance, tilt traded against sideways
     shift) the prior then pulls each correction to zero and that pose's robot error goes into
     the shared X_FC: 0.22 mm instead of 0.11 mm on one simulated set, and on average worse
     than OpenCV's Tsai alone. The seed and the outlier test were not the cause: seeded from

@@ -65,6 +65,7 @@ def build_report(solution: Solution, truth: dict | None, extra: dict | None = No
         },
         "reprojection_rms_px": he.rms_px,
         "reprojection_rms_after_robot_corrections_px": he.corrected_rms_px,
+        "hand_eye_pixel_sigma_px": he.pixel_sigma_px,
         "stereo_rms_px": None if solution.stereo is None else solution.stereo.rms_px,
         "camera_rms_px": solution.camera_rms_px,
         "per_pose": per_pose,
@@ -113,6 +114,11 @@ def report_text(report: dict) -> str:
         f"as reported, {report['reprojection_rms_after_robot_corrections_px']:.3f} px after "
         "the small robot-pose corrections"
     )
+    if report.get("hand_eye_pixel_sigma_px") is not None:
+        lines.append(
+            f"  images weighed with a board point sigma of {report['hand_eye_pixel_sigma_px']:.3f}"
+            " px against the robot-pose accuracy"
+        )
     s = report["board_scatter_mm"]
     lines.append(
         f"board-in-base scatter (std x y z): {s[0]:.2f} {s[1]:.2f} {s[2]:.2f} mm, "
