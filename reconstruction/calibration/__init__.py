@@ -11,4 +11,6 @@ eye_in_hand   the whole hand-eye calibration: seed, refine, reject outlier poses
 eye_to_hand   a static stereo camera against the robot (blinking marker, rigid fit)
 file          the calibration file that scan and reconstruct read
 exchange      the calibration as OpenCV stereo_calib and ROS camera_info / tf files
+              (exchange_opencv, exchange_ros, exchange_tf; camera_files: shared checks)
+camera_quality  epipolar error and board coverage of a camera calibration
 """
