@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from reconstruction.calibration import boards
+from reconstruction.calibration.board_reasons import DetectionLimits, detect_board_or_reason
 from reconstruction.calibration.boards import (
     BoardSpec,
     Detection,
     board_image,
     detect_board,
-    detect_board_or_reason,
 )
 from reconstruction.errors import ScannerError
 from tests.board_views import warped_board
@@ -215,7 +215,7 @@ def test_detection_limits_decide_what_is_blamed():
     blurred = cv2.GaussianBlur(
         _on_canvas(board_image(BOARD, px_per_spacing=20).image, 100, 100), (0, 0), 10
     )
-    lenient = boards.DetectionLimits(min_laplacian_variance=0.0)
+    lenient = DetectionLimits(min_laplacian_variance=0.0)
     assert not detect_board_or_reason(BOARD, blurred, limits=lenient).startswith("blurred")
     with pytest.raises(ScannerError, match="min_corner_spacing_px must be >= 0"):
-        boards.DetectionLimits(min_corner_spacing_px=-1.0)
+        DetectionLimits(min_corner_spacing_px=-1.0)

@@ -1,6 +1,7 @@
 """Camera and robot calibration from board (or marker) observations. Pure numeric.
 
 boards        board geometry, detection in images, printable patterns
+board_reasons why a board was not found in an image; a larger grid than given
 pose_files    robot pose files of other systems -> X_WF
 observations  one robot pose with its board detections; board pose by PnP
 settings      thresholds of the calibration

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from reconstruction.calibration.boards import BoardSpec, larger_chessboard
+from reconstruction.calibration.board_reasons import larger_chessboard
+from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.camera_quality import board_coverage, epipolar_error
 from reconstruction.calibration.file import Calibration, save_calibration
 from reconstruction.calibration.intrinsics import calibrate_camera, calibrate_stereo

@@ -14,12 +14,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from reconstruction.calibration.boards import (
-    BoardSpec,
-    Detection,
-    detect_board_or_reason,
-    larger_chessboard,
-)
+from reconstruction.calibration.board_reasons import detect_board_or_reason, larger_chessboard
+from reconstruction.calibration.boards import BoardSpec, Detection
 from reconstruction.calibration.file import load_calibration
 from reconstruction.calibration.observations import PoseObservation
 from reconstruction.calibration.plausibility import implausible_figures, rank_conventions
