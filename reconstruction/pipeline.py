@@ -10,14 +10,13 @@ polished by one more pose graph with those as priors). One corrected run holds a
 sets (`ViewResult.X_WC_kinematic`, `.X_WC_registered`, `.X_WC`) and the filtered clouds, so
 `build_surfaces` can mesh each variant without filtering and registering again.
 
-The stages are public (`filter_views`, `register_views`, `correct_handeye`, `build_surfaces`)
+The stages are public (`filter_views`, `view_registration.register_views`, `correct_handeye`, `build_surfaces`)
 for a caller that writes files between them. No file I/O here: `reconstruction.outputs` writes
 the files and the plain record of a result.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -41,14 +40,9 @@ from reconstruction.handeye_correction import (
 )
 from reconstruction.merge import align_hangings, group_positions
 from reconstruction.pass_alignment import AlignmentConfig, PassAlignment
-from reconstruction.posegraph import PoseEdge, PoseGraphConfig, optimise_pose_graph
+from reconstruction.posegraph import PoseGraphConfig, optimise_pose_graph
 from reconstruction.registration import (
     IcpConfig,
-    build_pyramid,
-    edge_check,
-    kinematic_X_TS,
-    register_pair,
-    select_pairs,
 )
 from reconstruction.stage_timer import StageTimer
 from reconstruction.surfaces import (
@@ -61,6 +55,7 @@ from reconstruction.surfaces import (
     surface_from,
 )
 from reconstruction.transforms import check_pose
+from reconstruction.view_registration import EdgeReport, RegisteredViews, register_hangings
 from reconstruction.views import ViewCloud
 
 
@@ -123,25 +118,6 @@ class ViewResult:
     hanging: int = 0
 
 
-@dataclass(frozen=True)
-class EdgeReport:
-    """An ICP pair (capture indices), its registration quality, and the pose graph's residual
-    at the overlap (NaN when the edge was pruned before the graph). `status` is 'kept' or
-    'pruned: <reason>'."""
-
-    source: int
-    target: int
-    kind: str
-    angle_rad: float
-    overlap: float
-    fitness: float
-    inlier_rmse_m: float
-    converged: bool
-    status: str
-    residual_translation_m: float
-    residual_rotation_rad: float
-
-
 @dataclass(frozen=True, eq=False)
 class ReconstructionResult:
     views: tuple[ViewResult, ...]
@@ -186,83 +162,6 @@ def filter_views(
     return kept_views, clouds, skipped
 
 
-@dataclass(frozen=True, eq=False)
-class RegisteredViews:
-    """The registration stage's output: overlapping pairs (list positions), the pose graph's
-    camera poses (None when ICP is off), the graph's edges and the per-edge report."""
-
-    pairs: tuple[tuple[int, int], ...]
-    X_WC: tuple[np.ndarray, ...] | None
-    kept_edges: tuple[PoseEdge, ...]
-    report: tuple[EdgeReport, ...]
-
-
-def register_views(
-    clouds: Sequence[FilteredCloud],
-    X_WC_kinematic: Sequence[np.ndarray],
-    indices: Sequence[int],
-    config: ReconstructionConfig,
-    timer: StageTimer,
-) -> RegisteredViews:
-    """Pair selection, pairwise ICP with edge checks, and the pose graph. With ICP off, only
-    the overlapping pairs (for the hand-eye refinement)."""
-    with timer("pairs"):
-        pyramids = [build_pyramid(c, config.icp) for c in clouds]
-        candidates = select_pairs(X_WC_kinematic, pyramids, config.icp)
-    pairs = tuple((p.source, p.target) for p in candidates)
-    if not config.icp.enabled or not candidates:
-        return RegisteredViews(pairs, None, (), ())
-
-    registrations, edges = [], []
-    with timer("icp"):
-        for p in candidates:
-            prior = kinematic_X_TS(X_WC_kinematic, p)
-            reg = register_pair(pyramids[p.source], pyramids[p.target], prior, config.icp)
-            why = edge_check(reg, prior, pyramids[p.source].centroid_C, config.icp)
-            registrations.append((p, reg, why))
-            if not why:
-                centroid = pyramids[p.source].centroid_C
-                edges.append(
-                    PoseEdge(
-                        p.source,
-                        p.target,
-                        reg.X_TS,
-                        reg.information,
-                        reg.n_correspondences,
-                        centroid,
-                        p.kind,
-                    )
-                )
-    with timer("pose_graph"):
-        graph = optimise_pose_graph(X_WC_kinematic, edges, config.pose_graph)
-    residual = {(r.source, r.target): r for r in graph.residuals}
-    report = []
-    for p, reg, why in registrations:
-        r = residual.get((p.source, p.target))
-        status = "pruned: " + why if why else ("kept" if r.kept else "pruned: graph residual")
-        report.append(
-            EdgeReport(
-                indices[p.source],
-                indices[p.target],
-                p.kind,
-                p.angle_rad,
-                p.overlap,
-                reg.fitness,
-                reg.inlier_rmse_m,
-                reg.converged,
-                status,
-                r.translation_m if r else math.nan,
-                r.rotation_rad if r else math.nan,
-            )
-        )
-    # graph.residuals follow the order of `edges`.
-    kept = tuple(e for e, r in zip(edges, graph.residuals) if r.kept)
-    # The hand-eye refinement trusts exactly the overlaps the graph kept.
-    return RegisteredViews(
-        tuple((e.source, e.target) for e in kept), graph.X_WC, kept, tuple(report)
-    )
-
-
 def build_surfaces(
     views: Sequence[ViewCloud],
     clouds: Sequence[FilteredCloud],
@@ -297,40 +196,6 @@ def build_surfaces(
     with ThreadPoolExecutor(max_workers=max(1, len(methods))) as pool:
         built = list(pool.map(build, methods))
     return fused, dict(zip(methods, built, strict=True)), notes
-
-
-def register_hangings(
-    clouds: Sequence[FilteredCloud],
-    X_WC_kinematic: Sequence[np.ndarray],
-    indices: Sequence[int],
-    groups: Sequence[Sequence[int]],
-    config: ReconstructionConfig,
-    timer: StageTimer,
-) -> RegisteredViews:
-    """`register_views` within each hanging (views of different hangings saw the object in
-    different places, so they are never paired), combined over all views."""
-    if len(groups) == 1:
-        return register_views(clouds, X_WC_kinematic, indices, config, timer)
-    pairs, edges, report = [], [], []
-    X_WC = list(X_WC_kinematic)
-    for group in groups:
-        part = register_views(
-            [clouds[k] for k in group],
-            [X_WC_kinematic[k] for k in group],
-            [indices[k] for k in group],
-            config,
-            timer,
-        )
-        pairs += [(group[a], group[b]) for a, b in part.pairs]
-        edges += [
-            replace(e, source=group[e.source], target=group[e.target]) for e in part.kept_edges
-        ]
-        report += part.report
-        for k, pose in zip(group, part.X_WC or ()):
-            X_WC[k] = pose  # a hanging without overlapping pairs keeps its kinematic poses
-    return RegisteredViews(
-        tuple(pairs), tuple(X_WC) if config.icp.enabled else None, tuple(edges), tuple(report)
-    )
 
 
 def reconstruct_views(
@@ -390,7 +255,9 @@ def reconstruct_views(
         X_WC_start = [X @ X_FC_start for X in X_WF]
         if (config.icp.enabled or config.handeye.enabled) and len(views) >= 2:
             indices = [v.index for v in views]
-            registered = register_hangings(clouds, X_WC_start, indices, groups, config, timer)
+            registered = register_hangings(
+                clouds, X_WC_start, indices, groups, config.icp, config.pose_graph, timer
+            )
         X_WC = list(registered.X_WC) if registered.X_WC is not None else X_WC_start
         if not (config.handeye.enabled and len(views) >= 2):
             break
