@@ -6,10 +6,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import signal
 import time
 from collections.abc import Callable
-from contextlib import contextmanager, suppress
+from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from scanner.manifest import SavedScan, new_manifest, open_scan, views_to_manife
 from scanner.next_best_view import CoverageModel
 from scanner.reconstruct import holds_reconstruction, run_reconstruct
 from scanner.report import write_summary
+from scanner.scan_session import interruptible, log_file, meshcat_if
 from scanner.scan_views import model_so_far
 from scanner.viewpoints import PlannedView, generate_viewpoints, planned_view
 from scanner.world import ScanWorld, WatchedRobot, live_cloud, setup_world
@@ -40,50 +40,6 @@ log = logging.getLogger("scanner.scan")
 class ScanResult:
     scan_dir: Path
     report: dict
-
-
-def _interruptible(machine):
-    """Ctrl-C / SIGTERM ask the machine to stop after the current capture."""
-
-    @contextmanager
-    def guard():
-        def handler(signum, frame):
-            log.warning("signal %d: finishing the current capture, then stopping", signum)
-            machine.request_abort()
-
-        previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            yield
-        finally:
-            for s, h in previous.items():
-                signal.signal(s, h)
-
-    return guard()
-
-
-@contextmanager
-def _log_file(path: Path):
-    """Every state transition goes to SCAN_DIR/scan.log (appended on resume); only warnings
-    (skipped views, failed captures) reach the terminal, whatever else configured logging."""
-    handler = logging.FileHandler(path)
-    handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
-    console = logging.StreamHandler()
-    console.setLevel(logging.WARNING)
-    console.setFormatter(logging.Formatter("scanner: %(levelname)s: %(message)s"))
-    root = logging.getLogger("scanner")
-    saved = root.level, root.propagate
-    root.addHandler(handler)
-    root.addHandler(console)
-    root.setLevel(logging.INFO)
-    root.propagate = False
-    try:
-        yield
-    finally:
-        root.removeHandler(handler)
-        root.removeHandler(console)
-        root.setLevel(saved[0])
-        root.propagate = saved[1]
-        handler.close()
 
 
 def _write_truth(store: CaptureStore, sim: Simulation, hangings: int) -> None:
@@ -223,16 +179,6 @@ def _scan_report(
     }
 
 
-def _meshcat(enabled: bool):
-    if not enabled:
-        return None
-    from pydrake.geometry import Meshcat
-
-    meshcat = Meshcat()
-    print(f"Meshcat: {meshcat.web_url()}", flush=True)
-    return meshcat
-
-
 def run_scan(
     config: ScanConfig | None,
     out_dir: Path | None,
@@ -252,7 +198,7 @@ def run_scan(
     config = saved.config if saved else (config or ScanConfig())
     hanging = saved.hanging if saved else 0
     with timer("setup"):
-        viewer = _meshcat(meshcat)
+        viewer = meshcat_if(meshcat)
         world = setup_world(config, viewer, hanging)
         live = _live_view(world, viewer)
     if saved is None:
@@ -263,7 +209,7 @@ def run_scan(
         store, views, hangings = saved.store, list(saved.views), saved.hangings
         store.update_manifest(status="running")
     run = _PassRunner(config, world, store, views, live, viewer, timer, progress)
-    with _interruptible(run), _log_file(store.root / "scan.log"):
+    with interruptible(run), log_file(store.root / "scan.log"):
         summary = run.passes(hangings, hanging)
     status = "interrupted" if summary.state.value == "aborted" else "captured"
     skipped = [{"index": o.index, "reason": o.reason} for o in summary.skipped]
