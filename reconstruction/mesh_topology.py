@@ -113,8 +113,68 @@ def fill_small_holes(mesh: o3d.geometry.TriangleMesh, max_radius_m: float) -> in
     added = np.arange(len(triangles)) >= len(original)
     if added.any():
         triangles = triangles[_manifold_patches(triangles, added)]
+    triangles = _fan_fill(np.asarray(mesh.vertices), triangles, max_radius_m)
     mesh.triangles = o3d.utility.Vector3iVector(triangles)
     return before - _boundary_loop_count(mesh)
+
+
+def _loop_order(boundary: np.ndarray) -> list[int] | None:
+    """The vertices of one boundary loop in order, or None unless it is a simple cycle."""
+    neighbours: dict[int, list[int]] = {}
+    for a, b in boundary:
+        neighbours.setdefault(int(a), []).append(int(b))
+        neighbours.setdefault(int(b), []).append(int(a))
+    if any(len(n) != 2 for n in neighbours.values()):
+        return None
+    start = int(boundary[0, 0])
+    order, previous = [start], None
+    while True:
+        a, b = neighbours[order[-1]]
+        following = b if a == previous else a
+        if following == start:
+            break
+        previous = order[-1]
+        order.append(following)
+    return order if len(order) == len(neighbours) else None
+
+
+def _fan_fill(vertices: np.ndarray, triangles: np.ndarray, max_radius_m: float) -> np.ndarray:
+    """Small holes VTK's filler left (its patch would have made an edge non-manifold: a
+    diagonal of the hole already exists elsewhere) closed by a fan from the loop vertex whose
+    diagonals are all new, oriented like the loop's own triangles."""
+    use = _edge_use(triangles)
+    boundary = use.edges[use.uses == 1]
+    if not len(boundary):
+        return triangles
+    n = len(vertices)
+    graph = coo_matrix((np.ones(len(boundary)), (boundary[:, 0], boundary[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    existing = {(int(a), int(b)) for a, b in use.edges}
+    directed = {(int(t[i]), int(t[(i + 1) % 3])) for t in triangles for i in range(3)}
+    added = []
+    for loop_label in np.unique(label[boundary[:, 0]]):
+        order = _loop_order(boundary[label[boundary[:, 0]] == loop_label])
+        if order is None or len(order) < 3:
+            continue
+        points = vertices[order]
+        if np.linalg.norm(points - points.mean(axis=0), axis=1).max() > max_radius_m:
+            continue
+        # The mesh's triangles run along a boundary edge one way; the patch runs it the other
+        # (by majority: Poisson meshes are not always consistently oriented).
+        along = sum((order[i - 1], order[i]) in directed for i in range(len(order)))
+        if 2 * along > len(order):
+            order = order[::-1]
+        for k in range(len(order)):
+            apex, ring = order[k], order[k + 1 :] + order[:k]
+            diagonals = [tuple(sorted((apex, v))) for v in ring[1:-1]]
+            if any(d in existing for d in diagonals):
+                continue
+            added += [(apex, ring[i], ring[i + 1]) for i in range(len(ring) - 1)]
+            existing.update(diagonals)
+            break
+    if not added:
+        return triangles
+    return np.vstack([triangles, np.array(added, triangles.dtype)])
 
 
 def mesh_quality(mesh) -> MeshQuality:
