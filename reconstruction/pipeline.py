@@ -10,9 +10,9 @@ polished by one more pose graph with those as priors). One corrected run holds a
 sets (`ViewResult.X_WC_kinematic`, `.X_WC_registered`, `.X_WC`) and the filtered clouds, so
 `build_surfaces` can mesh each variant without filtering and registering again.
 
-The stages are public (`filter_views`, `view_registration.register_views`, `correct_handeye`, `build_surfaces`)
-for a caller that writes files between them. No file I/O here: `reconstruction.outputs` writes
-the files and the plain record of a result.
+The stages are public (`filter_views`, `view_registration.register_views`, `correct_handeye`,
+`build_surfaces`) for a caller that writes files between them. No file I/O here:
+`reconstruction.outputs` writes the files and the plain record of a result.
 """
 
 from __future__ import annotations
