@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from reconstruction.mesh_topology import triangle_components
 from reconstruction.metrics import TriangleSurface, sample_surface, visible_mask
 from reconstruction.surfaces import FusedCloud
 
@@ -31,8 +32,8 @@ def closed_surface(fused: FusedCloud, poisson_depth: int = 7) -> TriangleSurface
         cloud, depth=poisson_depth, scale=2.0, n_threads=1
     )
     # Poisson may add detached blobs far from the data; the object is the largest component.
-    clusters, counts, _ = mesh.cluster_connected_triangles()
-    mesh.remove_triangles_by_mask(np.asarray(clusters) != int(np.argmax(counts)))
+    clusters, counts = triangle_components(np.asarray(mesh.triangles))
+    mesh.remove_triangles_by_mask(clusters != int(np.argmax(counts)))
     mesh.remove_unreferenced_vertices()
     return TriangleSurface(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
 

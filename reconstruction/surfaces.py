@@ -27,7 +27,7 @@ from reconstruction.filtering import (
     apply_hook,
     o3d_cloud,
 )
-from reconstruction.mesh_topology import clean_mesh, fill_small_holes
+from reconstruction.mesh_topology import clean_mesh, fill_small_holes, triangle_components
 from reconstruction.transforms import invert, rotate_vectors, transform_points
 from reconstruction.views import DepthImage
 
@@ -221,8 +221,8 @@ def poisson_closed_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceM
     """Poisson untrimmed, its main component: closed where the data surround the object (a
     collision model, a print), with the area it bridges beyond the data as `filled_area_m2`."""
     mesh, _ = _poisson_solution(inputs, config)
-    clusters, counts, _ = mesh.cluster_connected_triangles()
-    mesh.remove_triangles_by_mask(np.asarray(clusters) != int(np.argmax(counts)))
+    clusters, counts = triangle_components(np.asarray(mesh.triangles))
+    mesh.remove_triangles_by_mask(clusters != int(np.argmax(counts)))
     mesh.remove_unreferenced_vertices()
     out = finish_mesh("poisson_closed", mesh, config)
     unsupported = _unsupported(inputs, mesh, config)

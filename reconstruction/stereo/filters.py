@@ -48,22 +48,25 @@ def _framed_along_rows(disparity: np.ndarray, anchors: np.ndarray, tolerance_px:
     object), whose disparity is within tolerance_px of the straight line between the two
     anchors' disparities (a plane seen in perspective has a disparity linear in the image)."""
     height, width = disparity.shape
-    column = np.broadcast_to(np.arange(width), (height, width))
+    # 32-bit throughout: half the memory traffic of numpy's default 64-bit (this runs on
+    # every pixel of every view, twice).
+    disparity = disparity.astype(np.float32, copy=False)
+    column = np.broadcast_to(np.arange(width, dtype=np.int32), (height, width))
     gaps = ~np.isfinite(disparity)
 
     def nearest(mask, side):
         if side == "left":
-            return np.maximum.accumulate(np.where(mask, column, -1), axis=1)
-        flipped = np.where(mask, column, width)[:, ::-1]
+            return np.maximum.accumulate(np.where(mask, column, np.int32(-1)), axis=1)
+        flipped = np.where(mask, column, np.int32(width))[:, ::-1]
         return np.minimum.accumulate(flipped, axis=1)[:, ::-1]
 
     left, right = nearest(anchors, "left"), nearest(anchors, "right")
     framed = (left >= 0) & (right < width)
     framed &= (left > nearest(gaps, "left")) & (right < nearest(gaps, "right"))
-    row = np.arange(height)[:, None]
+    row = np.arange(height, dtype=np.int32)[:, None]
     left, right = np.clip(left, 0, width - 1), np.clip(right, 0, width - 1)
     d_left, d_right = disparity[row, left], disparity[row, right]
-    t = (column - left) / np.maximum(right - left, 1)
+    t = (column - left).astype(np.float32) / np.maximum(right - left, 1)
     with np.errstate(invalid="ignore"):
         return framed & (np.abs(disparity - (d_left + t * (d_right - d_left))) <= tolerance_px)
 
@@ -72,7 +75,9 @@ def enclosed_mask(disparity: np.ndarray, anchors: np.ndarray, tolerance_px: floa
     """Valid pixels framed by anchors (textured valid pixels) along their row or column with a
     disparity that continues the anchors' (`_framed_along_rows`)."""
     rows = _framed_along_rows(disparity, anchors, tolerance_px)
-    columns = _framed_along_rows(disparity.T, anchors.T, tolerance_px).T
+    columns = _framed_along_rows(
+        np.ascontiguousarray(disparity.T), np.ascontiguousarray(anchors.T), tolerance_px
+    ).T
     return np.isfinite(disparity) & (rows | columns)
 
 

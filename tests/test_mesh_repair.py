@@ -1,0 +1,57 @@
+"""Mesh repairs written in numpy agree with the Open3D routines they replace."""
+
+import numpy as np
+import open3d as o3d
+
+from reconstruction.mesh_topology import (
+    _edge_use,
+    _manifold_edges_keep,
+    clean_mesh,
+    triangle_components,
+)
+
+
+def _two_spheres_and_a_fin():
+    a = o3d.geometry.TriangleMesh.create_sphere(radius=0.01, resolution=10)
+    b = o3d.geometry.TriangleMesh.create_sphere(radius=0.002, resolution=6).translate((0.05, 0, 0))
+    mesh = a + b
+    v = np.asarray(mesh.vertices)
+    t = np.asarray(mesh.triangles)
+    # A small fin on one edge of the big sphere: that edge is then used by three triangles.
+    i, j = int(t[0, 0]), int(t[0, 1])
+    fin_tip = (v[i] + v[j]) / 2 + np.array([0.0, 0.0, 1e-4])
+    vertices = np.vstack([v, fin_tip])
+    triangles = np.vstack([t, [i, j, len(v)]])
+    return vertices, triangles
+
+
+def test_components_match_open3d():
+    vertices, triangles = _two_spheres_and_a_fin()
+    labels, counts = triangle_components(triangles)
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles)
+    )
+    o3d_labels, o3d_counts, _ = mesh.cluster_connected_triangles()
+    assert sorted(counts.tolist()) == sorted(np.asarray(o3d_counts).tolist())
+    # The same partition: each of our labels maps to exactly one of Open3D's.
+    pairs = set(zip(labels.tolist(), np.asarray(o3d_labels).tolist()))
+    assert len(pairs) == len(counts) == 2
+
+
+def test_an_overused_edge_loses_its_smallest_triangle():
+    vertices, triangles = _two_spheres_and_a_fin()
+    assert (_edge_use(triangles).uses > 2).sum() == 1
+    keep = _manifold_edges_keep(vertices, triangles)
+    assert np.flatnonzero(~keep).tolist() == [len(triangles) - 1]  # the fin, the smallest
+    assert (_edge_use(triangles[keep]).uses <= 2).all()
+
+
+def test_clean_mesh_drops_debris_and_the_fin():
+    vertices, triangles = _two_spheres_and_a_fin()
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles)
+    )
+    big = len(o3d.geometry.TriangleMesh.create_sphere(radius=0.01, resolution=10).triangles)
+    clean_mesh(mesh, min_component_fraction=0.5)  # the small sphere is debris
+    assert len(mesh.triangles) == big
+    assert mesh.is_watertight()
