@@ -207,7 +207,8 @@ def _fan_fill(vertices: np.ndarray, triangles: np.ndarray, max_radius_m: float) 
     near[np.concatenate([np.unique(e) for e in loops])] = True
     existing = {(int(a), int(b)) for a, b in use.edges[near[use.edges].all(axis=1)]}
     directed = {
-        (int(t[i]), int(t[(i + 1) % 3])) for t in triangles[near[triangles].any(axis=1)]
+        (int(t[i]), int(t[(i + 1) % 3]))
+        for t in triangles[near[triangles].any(axis=1)]
         for i in range(3)
     }
     added = []

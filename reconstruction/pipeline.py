@@ -17,7 +17,7 @@ The stages are public (`filter_views`, `view_registration.register_views`, `corr
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -44,7 +44,7 @@ from reconstruction.posegraph import PoseGraphConfig, optimise_pose_graph
 from reconstruction.registration import (
     IcpConfig,
 )
-from reconstruction.stage_timer import StageTimer
+from reconstruction.stage_timer import StageListener, StageTimer
 from reconstruction.surfaces import (
     DepthView,
     FusedCloud,
@@ -141,19 +141,24 @@ def filter_views(
     X_FC_nominal: np.ndarray,
     config: ReconstructionConfig,
     remove_points: RemovePoints | None = None,
+    done: Mapping[int, FilteredCloud] | None = None,
 ) -> tuple[list[ViewCloud], list[FilteredCloud], list[tuple[int, str]]]:
     """Filter every view at its kinematic pose; views left with too few points are skipped
-    (reported), never fatal. Returns the kept views, their clouds, and (index, reason) skips."""
+    (reported), never fatal. Returns the kept views, their clouds, and (index, reason) skips.
+    `done`: clouds of some views already filtered exactly so (streamed during the scan)."""
     kept_views, clouds, skipped = [], [], []
+    done = done or {}
     for view in views:
-        cloud = filter_view(
-            view.index,
-            view.points_C,
-            view.colors,
-            view.X_WF @ X_FC_nominal,
-            config.filter,
-            remove_points,
-        )
+        cloud = done.get(view.index)
+        if cloud is None:
+            cloud = filter_view(
+                view.index,
+                view.points_C,
+                view.colors,
+                view.X_WF @ X_FC_nominal,
+                config.filter,
+                remove_points,
+            )
         if len(cloud) < config.filter.min_points:
             skipped.append((view.index, f"{len(cloud)} points after filtering"))
             continue
@@ -204,20 +209,26 @@ def reconstruct_views(
     config: ReconstructionConfig = ReconstructionConfig(),
     remove_points: RemovePoints | None = None,
     hangings: Sequence[Sequence[int]] | None = None,
+    filtered: Mapping[int, FilteredCloud] | None = None,
+    on_stage: StageListener | None = None,
 ) -> ReconstructionResult:
     """The whole reconstruction on in-memory views (see the module docstring). `hangings`:
     the capture indices of each pass of a multi-hanging scan (None: one pass); the passes are
-    aligned into the first one's frame."""
+    aligned into the first one's frame. `filtered`: clouds of views already filtered at the
+    kinematic pose with these settings (the filter stage skips them). `on_stage` hears each
+    stage start and end (a progress display)."""
     X_FC_nominal = check_pose(X_FC_nominal, "X_FC_nominal")
     indices = [v.index for v in views]
     if len(set(indices)) != len(indices):
         raise ScannerError("views: capture indices must be unique")
-    timer = StageTimer()
+    timer = StageTimer(on_stage=on_stage)
     notes: list[str] = []
 
     all_views = list(views)
     with timer("filter"):
-        views, clouds, skipped = filter_views(all_views, X_FC_nominal, config, remove_points)
+        views, clouds, skipped = filter_views(
+            all_views, X_FC_nominal, config, remove_points, filtered
+        )
     _require_views(views, skipped, config)
     groups = group_positions(views, hangings or [[v.index for v in views]])
     coarse = None

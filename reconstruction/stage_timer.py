@@ -9,20 +9,31 @@ from typing import TypeVar
 
 T = TypeVar("T")
 
+# on_stage(stage, finished): told when a stage starts (False) and ends (True), e.g. by a
+# progress display. Stages may run in parallel threads (the surfaces).
+StageListener = Callable[[str, bool], None]
+
 
 class StageTimer:
     """`with timer("icp"): ...` adds the block's wall time to `timer.seconds["icp"]`."""
 
-    def __init__(self, seconds: dict[str, float] | None = None) -> None:
+    def __init__(
+        self, seconds: dict[str, float] | None = None, on_stage: StageListener | None = None
+    ) -> None:
         self.seconds: dict[str, float] = {} if seconds is None else seconds
+        self.on_stage = on_stage
 
     @contextmanager
     def __call__(self, stage: str) -> Iterator[None]:
+        if self.on_stage is not None:
+            self.on_stage(stage, False)
         t0 = time.perf_counter()
         try:
             yield
         finally:
             self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - t0
+            if self.on_stage is not None:
+                self.on_stage(stage, True)
 
     def call(self, stage: str, fn: Callable[..., T], *args) -> T:
         """fn(*args), timed as `stage`."""

@@ -15,6 +15,7 @@ from scanner.arguments import (
     name_arg,
     path_arg,
     positive_float,
+    worker_count,
 )
 from scanner.calibrate.arguments import add_calibrate_parser
 from scanner.exchange import add_export_parser, add_import_parser
@@ -109,7 +110,12 @@ def _add_reconstruct_parser(sub) -> None:
         description="Rebuild the model from saved captures (never modifies them).",
     )
     reconstruct.add_argument(
-        "scan_dir", type=path_arg, help="a scan directory made by `scanner scan`"
+        "scan_dirs",
+        type=path_arg,
+        nargs="+",
+        metavar="SCAN_DIR",
+        help="scan directories made by `scanner scan`; several are reconstructed in parallel "
+        "as Ray tasks, each into its own SCAN_DIR/results[-N]",
     )
     reconstruct.add_argument(
         "--config",
@@ -129,6 +135,17 @@ def _add_reconstruct_parser(sub) -> None:
     reconstruct.add_argument("--no-icp", action="store_true", help="poses from the robot only")
     reconstruct.add_argument(
         "--no-handeye", action="store_true", help="keep X_FC as given (no loop-based correction)"
+    )
+    reconstruct.add_argument(
+        "--workers",
+        type=worker_count,
+        help="scans reconstructed at a time (default: the number of CPU cores)",
+    )
+    reconstruct.add_argument(
+        "--ray-address",
+        metavar="ADDR",
+        help="run the tasks on this Ray cluster (HOST:PORT, or auto) instead of a local Ray; "
+        "its nodes need scanner installed and the scans at the same paths (default: local)",
     )
     reconstruct.add_argument(
         "--formats",
@@ -212,7 +229,9 @@ def _scan(args: argparse.Namespace) -> int:
         name = Path(config.object).stem
         out = args.out or Path("scans") / f"{name}-{stamp}"
     with ProgressBar("views") as bar:
-        result = run_scan(config, out, args.resume, args.force, bar.update, meshcat=args.meshcat)
+        result = run_scan(
+            config, out, args.resume, args.force, bar.update, args.meshcat, show_stages=True
+        )
     r = result.report
     print(
         f"scan: {r['views_captured']}/{r['views_planned']} views captured, "
@@ -231,54 +250,50 @@ def _scan(args: argparse.Namespace) -> int:
 
 
 def _reconstruct(args: argparse.Namespace) -> int:
-    from dataclasses import replace
+    from scanner.reconstruct_command import ReconstructOptions, reconstruct_one, summary_lines
 
-    from reconstruction.calibration.file import load_calibration
-    from scanner.manifest import open_scan
-    from scanner.reconstruct import (
-        RECONSTRUCTION_MARKER,
-        free_reconstruction_dir,
-        load_processing_config,
-        run_reconstruct,
+    dirs = args.scan_dirs
+    if len(dirs) > 1 and args.out is not None:
+        raise ScannerError("--out names one results folder: give it with one SCAN_DIR only")
+    options = ReconstructOptions(
+        args.config,
+        args.calibration,
+        args.no_icp,
+        args.no_handeye,
+        args.formats,
+        args.out,
+        args.force,
+        progress=len(dirs) == 1 and args.ray_address is None,
     )
-    from scanner.results_folder import require_replaceable
-
-    scan = open_scan(args.scan_dir)
-    if args.config is not None:
-        processing = load_processing_config(args.config)
-    else:
-        processing = scan.config.processing
-    rec = processing.reconstruction
-    if args.no_icp:
-        rec = replace(rec, icp=replace(rec.icp, enabled=False))
-    if args.no_handeye:
-        rec = replace(rec, handeye=replace(rec.handeye, enabled=False))
-    formats = processing.mesh_formats
-    if args.formats:
-        formats = tuple("." + f.strip().lstrip(".").lower() for f in args.formats.split(","))
-    processing = replace(processing, reconstruction=rec, mesh_formats=formats)
-    stereo = X_FC = None
-    if args.calibration is not None:
-        calibration = load_calibration(args.calibration)
-        stereo, X_FC = calibration.stereo, calibration.X_FC
-    out = args.out or free_reconstruction_dir(args.scan_dir)
-    if args.out is not None:
-        require_replaceable(args.out, RECONSTRUCTION_MARKER, args.force, "reconstruction")
-    run = run_reconstruct(scan, processing, out, X_FC, stereo)
-    r = run.report
-    print(
-        f"reconstruct: {r['captures_used']} captures used, {len(r['captures_skipped'])} "
-        f"skipped, {r['reconstruct_s']:.1f} s"
-    )
-    if "chamfer_mm" in r:
-        print(
-            f"{r['primary_surface']}: chamfer {r['chamfer_mm']:.3f} mm, F-score(1 mm) "
-            f"{r['fscore_1mm']:.3f}, completeness(2 mm) {r['completeness_2mm']:.3f}; "
-            f"hand-eye error {r['handeye_error_mm']:.3f} mm / {r['handeye_error_deg']:.4f} deg"
-        )
-    _warn_handeye(r)
+    if len(dirs) > 1 or args.ray_address is not None or args.workers is not None:
+        return _reconstruct_batch(dirs, options, args)
+    run = reconstruct_one(dirs[0], options)
+    for line in summary_lines(run.report):
+        print(line)
+    _warn_handeye(run.report)
     print(f"results: {run.results_dir}")
     return 0
+
+
+def _reconstruct_batch(dirs: list[Path], options, args: argparse.Namespace) -> int:
+    import os
+
+    from scanner.batch import run_batch
+    from scanner.reconstruct_command import reconstruct_one, summary_lines
+
+    def done(outcome) -> None:
+        if outcome.ok:
+            lines = summary_lines(outcome.report)
+            print(f"{outcome.scan_dir}: ok, results {outcome.results_dir}; " + "; ".join(lines))
+            _warn_handeye(outcome.report)
+        else:
+            print(f"{outcome.scan_dir}: FAILED: {outcome.error}", flush=True)
+
+    workers = args.workers or os.cpu_count() or 1
+    outcomes = run_batch(dirs, reconstruct_one, options, workers, args.ray_address, done)
+    failed = [o for o in outcomes if not o.ok]
+    print(f"batch: {len(outcomes) - len(failed)} of {len(outcomes)} scans reconstructed")
+    return 1 if failed else 0
 
 
 def _warn_handeye(report: dict) -> None:
@@ -292,7 +307,7 @@ def _warn_handeye(report: dict) -> None:
 def _merge(args: argparse.Namespace) -> int:
     from scanner.merge import run_merge
 
-    run = run_merge(args.scan_dirs, args.out, args.config, args.force)
+    run = run_merge(args.scan_dirs, args.out, args.config, args.force, progress=True)
     r = run.report
     print(
         f"merge: {len(r['hangings'])} hangings, {r['captures_used']} captures; alignment "

@@ -18,7 +18,11 @@ from scanner.results_folder import require_replaceable
 
 
 def run_merge(
-    scan_dirs: list[Path], out: Path, config: Path | None = None, force: bool = False
+    scan_dirs: list[Path],
+    out: Path,
+    config: Path | None = None,
+    force: bool = False,
+    progress: bool = False,
 ) -> ReconstructRun:
     """Checks the scans belong together (distinct scans, one camera model), then reconstructs
     them as one; a merge whose alignment fails verification raises RefusedResultError."""
@@ -41,4 +45,4 @@ def run_merge(
             )
     require_replaceable(out, RECONSTRUCTION_MARKER, force, "reconstruction")
     processing = None if config is None else load_processing_config(config)
-    return reconstruct_scans(scans, Path(out), processing)
+    return reconstruct_scans(scans, Path(out), processing, progress=progress)

@@ -14,6 +14,7 @@ results folder (captures are never modified):
 from __future__ import annotations
 
 import json
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -36,6 +37,9 @@ from scanner.manifest import SavedScan, open_scan
 from scanner.results_folder import free_results_dir, holds_result, staged_folder
 from scanner.scan_views import gather_views, with_roi_centre
 from scanner.typed_yaml import load_yaml_file, to_dict
+from scanner.view_stream import StreamedViews, settings_key
+
+log = logging.getLogger("scanner.reconstruct")
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,12 +106,16 @@ def run_reconstruct(
     results_dir: Path | None = None,
     X_FC: np.ndarray | None = None,
     stereo: StereoCamera | None = None,
+    streamed: StreamedViews | None = None,
+    progress: bool = False,
 ) -> ReconstructRun:
     """Reconstruct a saved scan (a directory, or one already opened). Defaults: the scan's own
-    processing settings, camera model and X_FC (from its manifest); results in SCAN_DIR/results."""
+    processing settings, camera model and X_FC (from its manifest); results in SCAN_DIR/results.
+    `streamed`: per-view results computed while the scan ran (used where the settings match);
+    `progress`: show the stages on stderr (when it is a terminal)."""
     scan = scan if isinstance(scan, SavedScan) else open_scan(scan)
     out = Path(results_dir) if results_dir else scan.store.results_dir
-    return reconstruct_scans([scan], out, processing, X_FC, stereo)
+    return reconstruct_scans([scan], out, processing, X_FC, stereo, streamed, progress)
 
 
 def reconstruct_scans(
@@ -116,18 +124,39 @@ def reconstruct_scans(
     processing: ProcessingConfig | None = None,
     X_FC: np.ndarray | None = None,
     stereo: StereoCamera | None = None,
+    streamed: StreamedViews | None = None,
+    progress: bool = False,
 ) -> ReconstructRun:
     """One model from the captures of one or more scans: every hanging of every scan,
     aligned into the first one's frame (refused, with nothing written, when an alignment does
     not verify). Results are written to `out` as a whole, or not at all."""
     t0 = time.perf_counter()
+    processing = processing or scans[0].config.processing
+    display = _stage_display(scans) if progress else None
+    try:
+        return _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0)
+    finally:
+        if display is not None:
+            display.close()
+
+
+def _stage_display(scans: list[SavedScan]):
+    from scanner.progress import StageProgress
+
+    return StageProgress(sum(len(s.store.captured_indices()) for s in scans))
+
+
+def _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0) -> ReconstructRun:
     first = scans[0]
-    processing = processing or first.config.processing
     config = with_roi_centre(processing.reconstruction, np.array(first.config.scan_center_m))
-    timer = StageTimer()
+    on_stage = display.on_stage if display else None
+    timer = StageTimer(on_stage=on_stage)
+    ready, filtered = _streamed_for(streamed, first, processing, X_FC, stereo)
 
     with timer("stereo"):
-        views = gather_views(scans, processing, X_FC, stereo)
+        views = gather_views(
+            scans, processing, X_FC, stereo, ready, display.on_view if display else None
+        )
     if len(views.views) < config.min_views:
         raise ScannerError(
             f"{first.root}: {len(views.views)} usable captures, the reconstruction needs at "
@@ -136,7 +165,9 @@ def reconstruct_scans(
     X_FC = first.X_FC_nominal if X_FC is None else X_FC
     hangings = views.hangings if len(views.hangings) > 1 else None
     with timer("reconstruct"):
-        result = reconstruct_views(views.views, X_FC, config, views.remove, hangings)
+        result = reconstruct_views(
+            views.views, X_FC, config, views.remove, hangings, filtered, on_stage
+        )
 
     report: dict = {"captures_used": len(views.views), "captures_skipped": views.skipped}
     with timer("coverage"):
@@ -167,6 +198,20 @@ def reconstruct_scans(
         merged = {**earlier, **report}
         _write_report(staging, merged)
     return ReconstructRun(result, merged, out)
+
+
+def _streamed_for(streamed, scan: SavedScan, processing, X_FC, stereo) -> tuple[dict, dict]:
+    """The streamed views and filtered clouds of `scan` when they were made with the settings
+    of this run, else nothing (they are then computed again)."""
+    if streamed is None:
+        return {}, {}
+    X = scan.X_FC_nominal if X_FC is None else X_FC
+    if streamed.key != settings_key(scan, processing, X, stereo or scan.stereo):
+        log.info("per-view results of the scan were made with other settings: recomputed")
+        return {}, {}
+    ready = {i: (v.view, v.q_rad) for i, v in streamed.views.items()}
+    filtered = {i: v.cloud for i, v in streamed.views.items() if v.cloud is not None}
+    return ready, filtered
 
 
 def _earlier_report(out: Path) -> dict:

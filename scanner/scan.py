@@ -30,6 +30,7 @@ from scanner.reconstruct import holds_reconstruction, run_reconstruct
 from scanner.report import write_summary
 from scanner.scan_session import interruptible, log_file, meshcat_if
 from scanner.scan_views import model_so_far
+from scanner.view_stream import ViewStream, processing_hidden_s, with_stream
 from scanner.viewpoints import PlannedView, generate_viewpoints, planned_view
 from scanner.world import ScanWorld, WatchedRobot, live_cloud, setup_world
 
@@ -132,6 +133,7 @@ def _decision_maker(
     todo: list[PlannedView],
     tour: Tour,
     live,
+    stream: ViewStream | None = None,
 ) -> DecisionMaker:
     ordered = [todo[k] for k in tour.order]
     preferred = {todo[k].index: tour.option[k] for k in range(len(todo))}
@@ -145,7 +147,9 @@ def _decision_maker(
         len(views),
         Kinematics().X_WF,
         config.machine,
-        process=live_cloud(live, config, world.stereo, world.X_FC) if live else None,
+        process=with_stream(
+            live_cloud(live, config, world.stereo, world.X_FC) if live else None, stream
+        ),
     )
 
 
@@ -186,13 +190,15 @@ def run_scan(
     force: bool = False,
     progress: Callable[[int, int], None] | None = None,
     meshcat: bool = False,
+    show_stages: bool = False,
 ) -> ScanResult:
     """A new scan into `out_dir`, or continue the scan in `resume` (then `config` must be None
     or equal to the saved one). A resumed scan whose captures are complete is only
-    reconstructed; a complete scan is refused (nothing is changed)."""
+    reconstructed; a complete scan is refused (nothing is changed). `show_stages`: the
+    reconstruction's stages on stderr (when it is a terminal)."""
     saved = _open_resumed(resume, config) if resume is not None else None
     if saved is not None and saved.manifest.get("status") == "captured":
-        return _reconstruct_captured(saved)
+        return _reconstruct_captured(saved, show_stages)
     timer = StageTimer()
     wall0 = time.perf_counter()
     config = saved.config if saved else (config or ScanConfig())
@@ -208,20 +214,30 @@ def run_scan(
     else:
         store, views, hangings = saved.store, list(saved.views), saved.hangings
         store.update_manifest(status="running")
-    run = _PassRunner(config, world, store, views, live, viewer, timer, progress)
+    # Per-view work runs beside the capture loop when the scan reconstructs at its end.
+    stream = ViewStream(saved or open_scan(store.root)) if config.reconstruct else None
+    run = _PassRunner(config, world, store, views, live, viewer, timer, progress, stream)
     with interruptible(run), log_file(store.root / "scan.log"):
-        summary = run.passes(hangings, hanging)
+        try:
+            summary = run.passes(hangings, hanging)
+        finally:
+            streamed = stream.finish() if stream else None
     status = "interrupted" if summary.state.value == "aborted" else "captured"
     skipped = [{"index": o.index, "reason": o.reason} for o in summary.skipped]
     store.update_manifest(status=status, skipped_views=skipped)
 
     def report() -> dict:
-        return _scan_report(config, store, summary, run.tour_cost_s, len(views), timer, wall0)
+        out = _scan_report(config, store, summary, run.tour_cost_s, len(views), timer, wall0)
+        if streamed is not None:
+            seconds = streamed.processing_s()
+            out["processing_s"] = sum(seconds.values())
+            out["processing_hidden_s"] = processing_hidden_s(summary.outcomes, seconds)
+        return out
 
     _write_scan_report(store, report())
     if config.reconstruct and status == "captured":
         with timer("reconstruction"):
-            run_reconstruct(saved or open_scan(store.root))
+            run_reconstruct(saved or open_scan(store.root), streamed=streamed, progress=show_stages)
         store.update_manifest(status="complete")
         _write_scan_report(store, report())
     return ScanResult(store.root, _read_report(store))
@@ -238,8 +254,8 @@ class _PassRunner:
     """Runs the decision maker over each hanging's views in turn, re-hanging the object in
     between (the simulator turns it; hardware asks the operator), and sums up the runs."""
 
-    def __init__(self, config, world, store, views, live, viewer, timer, progress) -> None:
-        self.config, self.world, self.store = config, world, store
+    def __init__(self, config, world, store, views, live, viewer, timer, progress, stream):
+        self.config, self.world, self.store, self.stream = config, world, store, stream
         self.views, self.live, self.viewer = views, live, viewer
         self.timer, self.progress = timer, progress
         self.tour_cost_s = 0.0
@@ -332,7 +348,7 @@ class _PassRunner:
             tour = plan_tour(robot.joint_positions(), todo, self.world.planner.estimate_duration_s)
         self.tour_cost_s += tour.cost_s
         machine = _decision_maker(
-            self.config, self.world, self.store, self.views, todo, tour, self.live
+            self.config, self.world, self.store, self.views, todo, tour, self.live, self.stream
         )
         self.machine = machine
         if self.abort_requested:
@@ -390,7 +406,7 @@ def _write_scan_report(store: CaptureStore, report: dict) -> None:
         write_summary(merged, store.results_dir)
 
 
-def _reconstruct_captured(saved: SavedScan) -> ScanResult:
+def _reconstruct_captured(saved: SavedScan, show_stages: bool) -> ScanResult:
     """A scan whose captures are all there but whose reconstruction did not finish (or was
     not asked for): reconstruct into results/ (kept from an earlier run if complete)."""
     store = saved.store
@@ -401,7 +417,7 @@ def _reconstruct_captured(saved: SavedScan) -> ScanResult:
                 f"reconstruct; nothing was changed. Reconstruct with: scanner reconstruct "
                 f"{saved.root}"
             )
-        run_reconstruct(saved)
+        run_reconstruct(saved, progress=show_stages)
     store.update_manifest(status="complete")
     _write_scan_report(store, {"status": "complete"})
     return ScanResult(store.root, _read_report(store))

@@ -5,7 +5,7 @@ files when the simulator wrote them, and a quick model of some captures to plan 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -43,32 +43,55 @@ def capture_views(
     X_FC: np.ndarray,
     params: StereoParams,
     indices: Sequence[int] | None = None,
+    ready: Mapping[int, tuple[ViewCloud, np.ndarray]] | None = None,
+    on_view: Callable[[], None] | None = None,
 ) -> CaptureViews:
     """Stereo clouds of every readable capture (or of those among `indices`); damaged
-    captures are reported and skipped."""
-    centre = np.array(scan.config.scan_center_m, float)
-    radius = keep_out_radius_m(scan.config.cell)
+    captures are reported and skipped. `ready`: (view, joints) of captures already done by
+    the same settings (streamed during the scan). `on_view()` after each capture (progress)."""
     out = CaptureViews([], [], {})
     wanted = None if indices is None else set(indices)
+    ready = ready or {}
     for index in scan.store.captured_indices():
         if wanted is not None and index not in wanted:
             continue
+        if index in ready:
+            view, q = ready[index]
+            out.views.append(view)
+            out.joints[index] = q
+            if on_view is not None:
+                on_view()
+            continue
         try:
-            capture = scan.store.read_capture(index)
+            view, q = stereo_view(scan, index, rect, X_FC, params)
         except ScannerError as e:
             log.warning("capture %d skipped: %s", index, e)
             out.skipped.append({"index": index, "reason": str(e)})
             continue
-        if capture.left.shape[1::-1] != rect.image_size:
-            reason = f"image size {capture.left.shape[1::-1]} differs from the camera model's"
-            out.skipped.append({"index": index, "reason": reason})
-            continue
-        X_WC = capture.X_WF @ X_FC
-        cloud = view_cloud(rect, capture.left, capture.right, X_WC, centre, radius, params)
-        depth = depth_image(rect, cloud)
-        out.views.append(ViewCloud(index, cloud.points_C, cloud.colors, capture.X_WF, depth))
-        out.joints[index] = capture.q_rad
+        out.views.append(view)
+        out.joints[index] = q
+        if on_view is not None:
+            on_view()
     return out
+
+
+def stereo_view(
+    scan: SavedScan, index: int, rect: Rectification, X_FC: np.ndarray, params: StereoParams
+) -> tuple[ViewCloud, np.ndarray]:
+    """One capture's stereo cloud and depth map, and its measured joint positions; a damaged
+    or mismatched capture raises ScannerError (its reason)."""
+    capture = scan.store.read_capture(index)
+    if capture.left.shape[1::-1] != rect.image_size:
+        raise ScannerError(
+            f"image size {capture.left.shape[1::-1]} differs from the camera model's"
+        )
+    centre = np.array(scan.config.scan_center_m, float)
+    radius = keep_out_radius_m(scan.config.cell)
+    cloud = view_cloud(
+        rect, capture.left, capture.right, capture.X_WF @ X_FC, centre, radius, params
+    )
+    depth = depth_image(rect, cloud)
+    return ViewCloud(index, cloud.points_C, cloud.colors, capture.X_WF, depth), capture.q_rad
 
 
 def load_truth_of(scan_dir: Path):
@@ -129,15 +152,25 @@ def gather_views(
     processing: ProcessingConfig,
     X_FC: np.ndarray | None = None,
     stereo: StereoCamera | None = None,
+    ready: Mapping[int, tuple[ViewCloud, np.ndarray]] | None = None,
+    on_view: Callable[[], None] | None = None,
 ) -> Gathered:
     """Stereo clouds of every capture of every scan (each with its own camera model and X_FC
-    unless given), with the point filter of each scan's cell."""
+    unless given), with the point filter of each scan's cell. `ready`: views of the first
+    scan already computed with these settings."""
     out = Gathered([], [], {}, [], {}, [], None)
     filters = []
     for k, scan in enumerate(scans):
         camera = stereo or scan.stereo
         X = scan.X_FC_nominal if X_FC is None else X_FC
-        captured = capture_views(scan, compute_rectification(camera), X, processing.stereo)
+        captured = capture_views(
+            scan,
+            compute_rectification(camera),
+            X,
+            processing.stereo,
+            ready=ready if k == 0 else None,
+            on_view=on_view,
+        )
         offset = k * INDEX_STRIDE
         out.views.extend(replace(v, index=v.index + offset) for v in captured.views)
         out.skipped.extend({**d, "index": d["index"] + offset} for d in captured.skipped)

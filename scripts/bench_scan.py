@@ -55,6 +55,8 @@ def main() -> None:
                 "robot_motion_s": round(r["robot_motion_s"], 3),
                 "robot_motion_s_naive_order": round(naive, 3),
                 "motion_saving": round(1 - r["robot_motion_s"] / naive, 3) if naive else None,
+                "processing_s": round(r.get("processing_s", 0.0), 2),
+                "processing_hidden_s": round(r.get("processing_hidden_s", 0.0), 2),
                 "peak_rss_mb": round(peak_mb, 1),
                 "views_captured": r["views_captured"],
                 "views_planned": r["views_planned"],

@@ -176,6 +176,12 @@ CASES = [
     (["reconstruct", "{root}/scan"], "--no-icp=1", None),
     (["reconstruct", "{root}/scan"], "--no-handeye=1", None),
     (["reconstruct", "{root}/scan"], "--formats", _names(["ply", "obj", "stl"])),
+    (["reconstruct", "{root}/scan"], "--workers", _ints(1, 1024)),
+    (
+        ["reconstruct", "{root}/scan"],
+        "--ray-address",
+        st.sampled_from(["", "nowhere", "host:", ":6379", "127.0.0.1:9", "ray://127.0.0.1:9"]),
+    ),
     (["merge", "--out", "{root}/m"], "", _paths([*PATHS, "{root}/scan"])),
     (["merge", "{root}/scan", "{root}/scan", "--out", "{root}/m"], "", _paths(["{root}/scan"])),
     (["merge", "{root}/scan", "{root}/scan2"], "--out", _paths(OUT_PATHS)),

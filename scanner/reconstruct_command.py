@@ -1,0 +1,76 @@
+"""`scanner reconstruct`'s work for one scan directory, given the command's options: shared by
+the single run and the batch (one Ray task per scan)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from scanner.reconstruct import ReconstructRun
+
+
+@dataclass(frozen=True)
+class ReconstructOptions:
+    """The flags of `scanner reconstruct`, applied to every scan given."""
+
+    config: Path | None = None
+    calibration: Path | None = None
+    no_icp: bool = False
+    no_handeye: bool = False
+    formats: str | None = None
+    out: Path | None = None
+    force: bool = False
+    progress: bool = False
+
+
+def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructRun:
+    """The scan's own settings unless --config; results in a free SCAN_DIR/results[-N] unless
+    --out (which must not hold a reconstruction, unless --force)."""
+    from reconstruction.calibration.file import load_calibration
+    from scanner.manifest import open_scan
+    from scanner.reconstruct import (
+        RECONSTRUCTION_MARKER,
+        free_reconstruction_dir,
+        load_processing_config,
+        run_reconstruct,
+    )
+    from scanner.results_folder import require_replaceable
+
+    scan = open_scan(scan_dir)
+    if options.config is not None:
+        processing = load_processing_config(options.config)
+    else:
+        processing = scan.config.processing
+    rec = processing.reconstruction
+    if options.no_icp:
+        rec = replace(rec, icp=replace(rec.icp, enabled=False))
+    if options.no_handeye:
+        rec = replace(rec, handeye=replace(rec.handeye, enabled=False))
+    formats = processing.mesh_formats
+    if options.formats:
+        formats = tuple("." + f.strip().lstrip(".").lower() for f in options.formats.split(","))
+    processing = replace(processing, reconstruction=rec, mesh_formats=formats)
+    stereo = X_FC = None
+    if options.calibration is not None:
+        calibration = load_calibration(options.calibration)
+        stereo, X_FC = calibration.stereo, calibration.X_FC
+    out = options.out or free_reconstruction_dir(scan_dir)
+    if options.out is not None:
+        require_replaceable(options.out, RECONSTRUCTION_MARKER, options.force, "reconstruction")
+    return run_reconstruct(scan, processing, out, X_FC, stereo, progress=options.progress)
+
+
+def summary_lines(report: dict) -> list[str]:
+    """What the command prints about one finished reconstruction."""
+    r = report
+    lines = [
+        f"reconstruct: {r['captures_used']} captures used, {len(r['captures_skipped'])} "
+        f"skipped, {r['reconstruct_s']:.1f} s"
+    ]
+    if "chamfer_mm" in r:
+        lines.append(
+            f"{r['primary_surface']}: chamfer {r['chamfer_mm']:.3f} mm, F-score(1 mm) "
+            f"{r['fscore_1mm']:.3f}, completeness(2 mm) {r['completeness_2mm']:.3f}; "
+            f"hand-eye error {r['handeye_error_mm']:.3f} mm / {r['handeye_error_deg']:.4f} deg"
+        )
+    return lines

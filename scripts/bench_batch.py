@@ -1,0 +1,95 @@
+"""Benchmark: reconstruct 4 saved scans one after the other, then as a Ray batch, in one run.
+
+Scans (or reuses, with --scan-root holding scan0..scan3) four 24-view vase scans with seeds
+0-3, capture only. Prints one JSON line: sequential_s, ray_s (Ray's start included), speedup,
+identical (every Poisson mesh and every metric of the batch equals the sequential one),
+workers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+
+from scanner.batch import run_batch
+from scanner.config import ScanConfig, with_overrides
+from scanner.reconstruct_command import ReconstructOptions, reconstruct_one
+from scanner.scan import run_scan
+
+METRICS = ("chamfer_mm", "chamfer_observed_mm", "handeye_error_mm", "handeye_error_deg")
+
+
+def _scans(root: Path, count: int, views: int) -> list[Path]:
+    dirs = []
+    for seed in range(count):
+        scan_dir = root / f"scan{seed}"
+        if not (scan_dir / "scan.yaml").is_file():
+            config = replace(
+                with_overrides(ScanConfig(), views=views, seed=seed), reconstruct=False
+            )
+            run_scan(config, scan_dir)
+        dirs.append(scan_dir)
+    return dirs
+
+
+def _same(a: Path, b: Path, report_a: dict, report_b: dict) -> bool:
+    ma = o3d.io.read_triangle_mesh(str(a / "mesh_poisson.ply"))
+    mb = o3d.io.read_triangle_mesh(str(b / "mesh_poisson.ply"))
+    return (
+        np.array_equal(np.asarray(ma.vertices), np.asarray(mb.vertices))
+        and np.array_equal(np.asarray(ma.triangles), np.asarray(mb.triangles))
+        and all(report_a[k] == report_b[k] for k in METRICS)
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--scan-root", type=Path, default=None, help="reuse/keep scans here")
+    parser.add_argument("--scans", type=int, default=4)
+    parser.add_argument("--views", type=int, default=24)
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        dirs = _scans(args.scan_root or Path(tmp) / "scans", args.scans, args.views)
+        t0 = time.perf_counter()
+        sequential = [
+            reconstruct_one(d, ReconstructOptions(out=Path(tmp) / "one-by-one" / d.name))
+            for d in dirs
+        ]
+        sequential_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        # Into a free SCAN_DIR/results[-N] of each scan, as `scanner reconstruct A B C D` does.
+        batch = run_batch(dirs, reconstruct_one, ReconstructOptions(), args.workers, None, _line)
+        ray_s = time.perf_counter() - t0
+        identical = all(
+            o.ok and _same(s.results_dir, o.results_dir, s.report, o.report)
+            for s, o in zip(sequential, batch)
+        )
+    print(
+        json.dumps(
+            {
+                "scans": len(dirs),
+                "workers": args.workers,
+                "sequential_s": round(sequential_s, 1),
+                "ray_s": round(ray_s, 1),
+                "speedup": round(sequential_s / ray_s, 3),
+                "identical": identical,
+            }
+        )
+    )
+
+
+def _line(outcome) -> None:
+    print(f"{outcome.scan_dir}: {'ok' if outcome.ok else 'FAILED ' + outcome.error}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,99 @@
+"""Batch reconstruction on Ray: one task per scan, a line per scan, failures reported without
+stopping the others, and the same results as one by one."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+import pytest
+import yaml
+
+from reconstruction.errors import ScannerError
+from scanner.batch import check_ray_address, run_batch
+from scanner.cli import main
+from scanner.config import load_scan_config
+from scanner.reconstruct_command import ReconstructOptions, reconstruct_one
+from scanner.scan import run_scan
+
+TINY = {
+    "camera": {"width_px": 320, "height_px": 240, "focal_px": 330.0},
+    "views": {"count": 5, "candidates": 200, "roll_candidates": 4},
+    "planner": {"roadmap_milestones": 120, "prm_build_time_s": 20.0},
+    "reconstruct": False,
+}
+
+
+@pytest.fixture(scope="module")
+def two_scans(tmp_path_factory):
+    root = tmp_path_factory.mktemp("batch")
+    config_file = root / "tiny.yaml"
+    dirs = []
+    for seed in (0, 1):
+        config_file.write_text(yaml.safe_dump({**TINY, "error_model": {"seed": seed}}))
+        dirs.append(run_scan(load_scan_config(config_file), root / f"scan{seed}").scan_dir)
+    return dirs
+
+
+def _mesh(path: Path):
+    m = o3d.io.read_triangle_mesh(str(path))
+    return np.asarray(m.vertices), np.asarray(m.triangles)
+
+
+def test_a_batch_equals_one_by_one_and_reports_each_scan(two_scans, tmp_path, capsys):
+    missing = tmp_path / "gone"
+    rc = main(["reconstruct", *map(str, two_scans), str(missing), "--workers", "2"])
+    out = capsys.readouterr().out
+    assert rc == 1  # one scan failed
+    assert f"{missing}: FAILED: {missing}: not a scan directory (no scan.yaml)" in out
+    for scan_dir in two_scans:
+        assert f"{scan_dir}: ok, results {scan_dir / 'results'}" in out
+    assert "batch: 2 of 3 scans reconstructed" in out
+    for scan_dir in two_scans:
+        alone = reconstruct_one(scan_dir, ReconstructOptions(out=tmp_path / scan_dir.name))
+        a = _mesh(scan_dir / "results" / "mesh_poisson.ply")
+        b = _mesh(alone.results_dir / "mesh_poisson.ply")
+        np.testing.assert_array_equal(a[0], b[0])
+        np.testing.assert_array_equal(a[1], b[1])
+        assert alone.report["chamfer_mm"] == yaml.safe_load(
+            (scan_dir / "results" / "report.json").read_text()
+        )["chamfer_mm"]
+
+
+def _dies_on_the_second(scan_dir: Path, options):
+    if scan_dir.name == "scan1":
+        os._exit(3)
+    return reconstruct_one(scan_dir, options)
+
+
+def test_a_worker_that_dies_is_reported_and_the_others_finish(two_scans, tmp_path):
+    import sys
+
+    from ray import cloudpickle
+
+    # Ray's workers cannot import this test module: send the task function by value.
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    heard = []
+    outcomes = run_batch(
+        two_scans,
+        _dies_on_the_second,
+        ReconstructOptions(),
+        workers=2,
+        ray_address=None,
+        on_done=heard.append,
+    )
+    assert [o.ok for o in outcomes] == [True, False], outcomes
+    assert "worker process died" in outcomes[1].error
+    assert len(heard) == 2
+
+
+def test_a_ray_address_that_does_not_answer_is_a_clear_error():
+    with pytest.raises(ScannerError, match="no Ray head answers"):
+        check_ray_address("127.0.0.1:9", timeout_s=1.0)
+    with pytest.raises(ScannerError, match="expected HOST:PORT"):
+        check_ray_address("nowhere")
+
+
+def test_out_with_several_scans_is_refused(two_scans, tmp_path, capsys):
+    rc = main(["reconstruct", *map(str, two_scans), "--out", str(tmp_path / "x")])
+    assert rc == 2 and "--out names one results folder" in capsys.readouterr().err

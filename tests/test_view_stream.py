@@ -1,0 +1,108 @@
+"""Per-view work streamed beside the capture loop gives exactly what the offline
+reconstruction of the same captures gives."""
+
+import numpy as np
+import pytest
+import yaml
+
+from reconstruction.pipeline import filter_views
+from reconstruction.stereo.rectification import compute_rectification
+from scanner.config import load_scan_config
+from scanner.decision import ViewOutcome
+from scanner.manifest import open_scan
+from scanner.reconstruct import run_reconstruct
+from scanner.scan import run_scan
+from scanner.scan_views import capture_views, geometry_filter, with_roi_centre
+from scanner.view_stream import ViewStream, processing_hidden_s
+
+SMALL = {
+    "camera": {"width_px": 320, "height_px": 240, "focal_px": 330.0},
+    "views": {"count": 5, "candidates": 200, "roll_candidates": 4},
+    "planner": {"roadmap_milestones": 120, "prm_build_time_s": 20.0},
+}
+
+
+@pytest.fixture(scope="module")
+def streamed_scan(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cfg") / "small.yaml"
+    path.write_text(yaml.safe_dump(SMALL))
+    return run_scan(load_scan_config(path), tmp_path_factory.mktemp("scans") / "small")
+
+
+def test_the_scan_streamed_its_views_and_says_how_much_was_hidden(streamed_scan):
+    r = streamed_scan.report
+    assert r["views_captured"] == 5 and r["status"] == "complete"
+    assert r["processing_s"] > 0
+    assert 0 < r["processing_hidden_s"] <= r["processing_s"]
+
+
+def test_streamed_views_equal_the_offline_ones(streamed_scan):
+    scan = open_scan(streamed_scan.scan_dir)
+    stream = ViewStream(scan)
+    for index in scan.store.captured_indices():
+        stream.submit(index)
+    streamed = stream.finish()
+    assert sorted(streamed.views) == scan.store.captured_indices() and not streamed.failed
+
+    processing = scan.config.processing
+    offline = capture_views(
+        scan, compute_rectification(scan.stereo), scan.X_FC_nominal, processing.stereo
+    )
+    config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
+    remove = geometry_filter(
+        scan.config, scan.X_FC_nominal, scan.stereo, offline.joints, processing.remove_margin_m
+    )
+    views, clouds, _ = filter_views(offline.views, scan.X_FC_nominal, config, remove)
+    for view, cloud in zip(views, clouds):
+        s = streamed.views[view.index]
+        np.testing.assert_array_equal(s.view.points_C, view.points_C)
+        np.testing.assert_array_equal(s.view.depth.depth_m, view.depth.depth_m)
+        np.testing.assert_array_equal(s.cloud.points_C, cloud.points_C)
+        np.testing.assert_array_equal(s.cloud.normals_C, cloud.normals_C)
+
+
+def test_the_scans_model_equals_an_offline_reconstruction(streamed_scan, tmp_path):
+    scan_dir = streamed_scan.scan_dir
+    offline = run_reconstruct(scan_dir, results_dir=tmp_path / "offline")
+    streamed = yaml.safe_load((scan_dir / "results" / "reconstruction.yaml").read_text())
+    again = yaml.safe_load((tmp_path / "offline" / "reconstruction.yaml").read_text())
+    assert streamed["handeye"] == again["handeye"]
+    import open3d as o3d
+
+    a = o3d.io.read_triangle_mesh(str(scan_dir / "results" / "mesh_poisson.ply"))
+    b = o3d.io.read_triangle_mesh(str(tmp_path / "offline" / "mesh_poisson.ply"))
+    np.testing.assert_array_equal(np.asarray(a.vertices), np.asarray(b.vertices))
+    np.testing.assert_array_equal(np.asarray(a.triangles), np.asarray(b.triangles))
+    assert offline.report["chamfer_mm"] == streamed_scan.report["chamfer_mm"]
+
+
+def test_streamed_views_made_with_other_settings_are_not_used(streamed_scan, tmp_path):
+    from dataclasses import replace
+
+    from scanner.reconstruct import _streamed_for
+
+    scan = open_scan(streamed_scan.scan_dir)
+    stream = ViewStream(scan)
+    stream.submit(scan.store.captured_indices()[0])
+    streamed = stream.finish()
+    processing = scan.config.processing
+    ready, filtered = _streamed_for(streamed, scan, processing, None, None)
+    assert len(ready) == 1 and len(filtered) == 1
+    other = replace(processing, remove_margin_m=processing.remove_margin_m + 0.001)
+    assert _streamed_for(streamed, scan, other, None, None) == ({}, {})
+    X_FC = scan.X_FC_nominal.copy()
+    X_FC[0, 3] += 1e-3
+    assert _streamed_for(streamed, scan, processing, X_FC, None) == ({}, {})
+
+
+def test_hidden_time_is_the_work_that_fits_in_the_next_motion():
+    outcomes = [
+        ViewOutcome(0, True, motion_s=2.0),
+        ViewOutcome(1, True, motion_s=0.3),
+        ViewOutcome(2, False, "unreachable"),
+        ViewOutcome(3, True, motion_s=1.0),
+    ]
+    seconds = {0: 0.5, 1: 0.5, 3: 0.5}
+    # View 0's work fits in the 0.3 s motion to view 1 only partly; view 1's next is a skip
+    # (no motion); the last view has no motion after it.
+    assert processing_hidden_s(outcomes, seconds) == pytest.approx(0.3)
