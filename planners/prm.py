@@ -1,16 +1,18 @@
 """The multi-query roadmap: built by OMPL's PRM over Drake collision checks, cached on disk.
 
-OMPL samples the joint-limit box, keeps collision-free milestones and connects each to its k
-nearest neighbours when the straight edge is collision-free (Drake edge check, see
-collision.py). The roadmap is then exported (vertices, edges) and kept as plain arrays:
-OMPL 2.0's Python bindings cannot load a stored roadmap back into a PRM, so queries are answered
-here, by the lazy search below, on exactly the graph OMPL built.
+OMPL samples the joint-limit box, keeps collision-free milestones (Drake state check) and
+connects each to its k nearest neighbours. The edges are not checked while the roadmap is built
+(a lazy PRM): checking all ~10 000 of them took 28 s, a newcomer's first wait, while a scan
+uses a few dozen. The roadmap is exported (vertices, edges) and kept as plain arrays: OMPL 2.0's
+Python bindings cannot load a stored roadmap back into a PRM, so queries are answered here, on
+exactly the graph OMPL built.
 
 Query (lazy, so that a query pays only for the edges it uses): the start and the goal are joined
-to their k nearest milestones and to each other by UNCHECKED edges; Dijkstra finds the fastest
-route (edge cost: straight-line cruise time, max_i |dq_i| / v_i); unchecked edges on it are
-checked and the failures removed until the route is proven or none is left. The direct edge is
-the cheapest candidate, so a free straight move is found with one edge check.
+to their k nearest milestones and to each other by candidate edges; Dijkstra finds the fastest
+route (edge cost: straight-line cruise time, max_i |dq_i| / v_i); every edge on it not yet
+proven is checked by Drake at the planner's fine step and the failures removed until the route
+is proven or none is left. Roadmap edges keep their verdict for later queries. The direct edge
+is the cheapest candidate, so a free straight move is found with one edge check.
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ from planners.collision import CollisionChecker
 from robots.rx60 import RX60
 
 # Bump when the stored format or the way a roadmap is built changes.
-ROADMAP_FORMAT = 1
+ROADMAP_FORMAT = 2
 # scipy's csgraph reads an explicit zero as "no edge"; keep every real edge strictly positive.
 _MIN_EDGE_COST_S = 1e-12
 
@@ -47,8 +49,9 @@ ou.setLogLevel(ou.LOG_WARN)
 
 @dataclass(frozen=True, eq=False)
 class Roadmap:
-    """vertices_rad (N, 6) collision-free milestones; edges (E, 2) vertex indices i < j, each
-    straight edge proven collision-free; build_s the wall time OMPL spent building it."""
+    """vertices_rad (N, 6) collision-free milestones; edges (E, 2) vertex indices i < j, NOT
+    checked (each is proven when a query first uses it); build_s the wall time OMPL spent
+    building it."""
 
     vertices_rad: np.ndarray
     edges: np.ndarray
@@ -60,6 +63,13 @@ class Roadmap:
             value = np.array(getattr(self, name))
             value.setflags(write=False)
             object.__setattr__(self, name, value)
+
+
+class _DeferredMotionValidator(ob.MotionValidator):
+    """While the roadmap is built, every motion is accepted: queries check the edges they use."""
+
+    def checkMotion(self, a, b) -> bool:  # noqa: N802 (OMPL's name)
+        return True
 
 
 class _DrakeMotionValidator(ob.MotionValidator):
@@ -96,8 +106,8 @@ class OmplSpace:
         self.si = ob.SpaceInformation(self.space)
         # OMPL's validity callback must return a Python bool (numpy.bool_ raises bad_cast).
         self.si.setStateValidityChecker(lambda s: checker.is_free(state_to_array(s)))
-        self._validator = _DrakeMotionValidator(self.si, checker)
-        self.si.setMotionValidator(self._validator)
+        self.motion_validator = _DrakeMotionValidator(self.si, checker)
+        self.si.setMotionValidator(self.motion_validator)
         self.si.setup()
 
     def state(self, q: np.ndarray):
@@ -124,16 +134,25 @@ def seed_ompl(seed: int) -> None:
 def build_roadmap(
     space: OmplSpace, milestones: int, neighbours: int, max_time_s: float, key: str
 ) -> Roadmap:
-    """Grow OMPL's PRM until it has `milestones` vertices or `max_time_s` has passed."""
-    prm = og.PRM(space.si)
-    prm.setMaxNearestNeighbors(neighbours)
-    prm.setProblemDefinition(ob.ProblemDefinition(space.si))
-    prm.setup()
-    start = time.perf_counter()
-    enough = ob.PlannerTerminationCondition(lambda: prm.milestoneCount() >= milestones)
-    ptc = ob.plannerOrTerminationCondition(enough, ob.timedPlannerTerminationCondition(max_time_s))
-    prm.constructRoadmap(ptc)
-    build_s = time.perf_counter() - start
+    """Grow OMPL's PRM until it has `milestones` vertices or `max_time_s` has passed; its edges
+    are left unchecked (see the module docstring)."""
+    deferred = _DeferredMotionValidator(space.si)
+    space.si.setMotionValidator(deferred)
+    try:
+        prm = og.PRM(space.si)
+        prm.setMaxNearestNeighbors(neighbours)
+        prm.setProblemDefinition(ob.ProblemDefinition(space.si))
+        prm.setup()
+        start = time.perf_counter()
+        enough = ob.PlannerTerminationCondition(lambda: prm.milestoneCount() >= milestones)
+        ptc = ob.plannerOrTerminationCondition(
+            enough, ob.timedPlannerTerminationCondition(max_time_s)
+        )
+        prm.constructRoadmap(ptc)
+        build_s = time.perf_counter() - start
+    finally:
+        # RRTConnect and everything else checks motions with Drake again.
+        space.si.setMotionValidator(space.motion_validator)
     data = ob.PlannerData(space.si)
     prm.getPlannerData(data)
     n = data.numVertices()
@@ -219,10 +238,11 @@ class RoadmapGraph:
         v = roadmap.vertices_rad
         self.n = len(v)
         i, j = roadmap.edges[:, 0], roadmap.edges[:, 1]
-        w = np.maximum(cruise_time_s(v[i], v[j], self.velocity_rad_s), _MIN_EDGE_COST_S)
-        self._rows = np.concatenate([i, j])
-        self._cols = np.concatenate([j, i])
-        self._weights = np.concatenate([w, w])
+        self._weights = np.maximum(cruise_time_s(v[i], v[j], self.velocity_rad_s), _MIN_EDGE_COST_S)
+        # Verdicts of the roadmap's edges, kept across queries: True proven, False blocked.
+        self._index = {(int(a), int(b)): k for k, (a, b) in enumerate(roadmap.edges)}
+        self._proven = np.zeros(len(roadmap.edges), bool)
+        self._alive = np.ones(len(roadmap.edges), bool)
         # In scaled coordinates q / v, the max-norm distance is exactly the edge cost.
         self._tree = cKDTree(v / self.velocity_rad_s) if self.n else None
 
@@ -259,14 +279,22 @@ class RoadmapGraph:
                 return None
             for edge in zip(route[:-1], route[1:]):
                 key = _candidate_key(edge, candidates)
-                if key is None or key in proven:
+                if key is None:
+                    k = self._index[(min(edge), max(edge))]
+                    if self._proven[k]:
+                        continue
+                elif key in proven:
                     continue
                 checks += 1
                 ends = [points[e] if e >= self.n else self.roadmap.vertices_rad[e] for e in edge]
-                if edge_free(ends[0], ends[1]):
+                free = edge_free(ends[0], ends[1])
+                if key is None:
+                    self._proven[k], self._alive[k] = free, free
+                elif free:
                     proven.add(key)
                 else:
                     del candidates[key]
+                if not free:
                     break
             else:
                 return [
@@ -278,9 +306,10 @@ class RoadmapGraph:
     def _shortest(self, candidates: dict[tuple[int, int], float]) -> list[int] | None:
         pairs = np.array(list(candidates.keys()), dtype=np.int64).reshape(-1, 2)
         costs = np.maximum(np.array(list(candidates.values())), _MIN_EDGE_COST_S)
-        rows = np.concatenate([self._rows, pairs[:, 0], pairs[:, 1]])
-        cols = np.concatenate([self._cols, pairs[:, 1], pairs[:, 0]])
-        weights = np.concatenate([self._weights, costs, costs])
+        edges, w = self.roadmap.edges[self._alive], self._weights[self._alive]
+        rows = np.concatenate([edges[:, 0], edges[:, 1], pairs[:, 0], pairs[:, 1]])
+        cols = np.concatenate([edges[:, 1], edges[:, 0], pairs[:, 1], pairs[:, 0]])
+        weights = np.concatenate([w, w, costs, costs])
         graph = csr_matrix((weights, (rows, cols)), shape=(self.n + 2, self.n + 2))
         s, g = self.n, self.n + 1
         dist, pred = dijkstra(graph, indices=s, return_predecessors=True)
@@ -295,7 +324,8 @@ class RoadmapGraph:
 def _candidate_key(
     edge: tuple[int, int], candidates: dict[tuple[int, int], float]
 ) -> tuple[int, int] | None:
-    """The candidate (unchecked) edge this route step uses, or None for a roadmap edge."""
+    """The candidate edge (to the start or goal) this route step uses, or None for a roadmap
+    edge."""
     a, b = edge
     if (a, b) in candidates:
         return (a, b)

@@ -129,7 +129,7 @@ def _matches(
         R_WCs = np.vstack(
             [np.broadcast_to(X_WC[s][:3, :3], (len(views[s].source_C), 3, 3)) for s in sources]
         )
-        d, k = vt.tree.query(p_Ct, distance_upper_bound=gate_m)
+        d, k = vt.tree.query(p_Ct, distance_upper_bound=gate_m, workers=-1)
         ok = np.isfinite(d)
         if not ok.any():
             continue

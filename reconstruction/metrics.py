@@ -76,7 +76,7 @@ def distances_to_mesh(points: np.ndarray, surface: TriangleSurface) -> np.ndarra
 
 def distances_to_points(points: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Nearest-neighbour distances (m) from each point to the target cloud."""
-    return cKDTree(np.asarray(target)).query(np.asarray(points))[0]
+    return cKDTree(np.asarray(target)).query(np.asarray(points), workers=-1)[0]
 
 
 def _sees(scene, p, normals, centre, todo, max_incidence_rad, offset_m) -> np.ndarray:
@@ -175,22 +175,40 @@ def evaluate_surface(
     n_samples: int = 200_000,
     seed: int = 0,
     max_incidence_rad: float = math.radians(80.0),
+    truth_samples: tuple[SurfaceSamples, np.ndarray | None] | None = None,
 ) -> dict[str, float]:
     """Metrics of a result (its points, and its mesh when it is one: then the result -> truth
-    direction uses the mesh's own area-uniform samples) against the true mesh."""
-    samples = sample_surface(truth, n_samples, seed)
+    direction uses the mesh's own area-uniform samples) against the true mesh.
+    `truth_samples`: (samples, observed mask) from `truth_sampling` with the same arguments,
+    to evaluate several results against one truth without sampling and ray casting again."""
+    samples, observed = truth_samples or truth_sampling(
+        truth, camera_centres_W, n_samples, seed, max_incidence_rad
+    )
     if result_mesh is not None:
         result_points = sample_surface(result_mesh, n_samples, seed + 1).points
         d_tr = distances_to_mesh(samples.points, result_mesh)
     else:
         d_tr = distances_to_points(samples.points, result_points)
     d_rt = distances_to_mesh(result_points, truth)
+    return surface_metrics(d_rt, d_tr, observed)
+
+
+def truth_sampling(
+    truth: TriangleSurface,
+    camera_centres_W: Sequence[np.ndarray] | None = None,
+    n_samples: int = 200_000,
+    seed: int = 0,
+    max_incidence_rad: float = math.radians(80.0),
+) -> tuple[SurfaceSamples, np.ndarray | None]:
+    """Area-uniform samples of the true surface and which of them the cameras saw (None
+    without camera centres)."""
+    samples = sample_surface(truth, n_samples, seed)
     observed = (
         None
         if camera_centres_W is None
         else visible_mask(samples, truth, camera_centres_W, max_incidence_rad)
     )
-    return surface_metrics(d_rt, d_tr, observed)
+    return samples, observed
 
 
 # The headline keys of a report against the truth (a surface's metrics, then the hand-eye's).

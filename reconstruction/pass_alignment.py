@@ -200,7 +200,7 @@ def _fit(points, grey, tree, reference_grey, distance: float) -> _Fit:
     """Overlap, inlier RMS, and the correlation of the grey values of matched points: a
     rotation that fits the shape but not the texture (a symmetric shape flipped) correlates
     near 0, the true one clearly above."""
-    d, idx = tree.query(points, distance_upper_bound=distance)
+    d, idx = tree.query(points, distance_upper_bound=distance, workers=-1)
     inliers = np.isfinite(d)
     if inliers.sum() < 10:
         return _Fit(float(inliers.mean()), math.inf, 0.0)

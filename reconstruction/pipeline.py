@@ -40,6 +40,7 @@ from reconstruction.handeye_correction import (
 )
 from reconstruction.merge import align_hangings, group_positions
 from reconstruction.pass_alignment import AlignmentConfig, PassAlignment
+from reconstruction.poisson_solver import start_solver
 from reconstruction.posegraph import PoseGraphConfig, optimise_pose_graph
 from reconstruction.registration import (
     IcpConfig,
@@ -223,6 +224,8 @@ def reconstruct_views(
         raise ScannerError("views: capture indices must be unique")
     timer = StageTimer(on_stage=on_stage)
     notes: list[str] = []
+    if any(m.startswith("poisson") for m in config.surfaces.methods):
+        start_solver()  # its imports run while the views are registered
 
     all_views = list(views)
     with timer("filter"):

@@ -2,8 +2,10 @@
 
 Open3D holds Python's GIL for the whole solve (12 s at depth 9 on a 24-view scan), so in a
 thread it stalls everything else in Python, the TSDF fusion beside it included. A child
-interpreter (`python -m reconstruction.poisson_solver IN OUT`) solves while this process goes
-on; arrays travel through .npz files. If the child cannot run, the solve happens here.
+interpreter (`python -m reconstruction.poisson_solver`) solves while this process goes on:
+it is started early (`start_solver`, while registration runs, so its 1.5 s of imports are
+hidden), then reads the paths of an input and an output .npz from its stdin. If the child
+cannot run, the solve happens here.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,9 +43,10 @@ def solve_poisson(
     anyway (9.8 s against 11.7 s)."""
     import open3d as o3d
 
-    from reconstruction.filtering import o3d_cloud
-
-    pc = o3d_cloud(points, normals, colors)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
+    pc.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
+    if len(colors):
+        pc.colors = o3d.utility.Vector3dVector(np.asarray(colors, np.float64) / 255.0)
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
             pc, depth=depth, n_threads=1
@@ -55,41 +59,81 @@ def solve_poisson(
     )
 
 
+_lock = threading.Lock()
+_waiting: subprocess.Popen | None = None  # a started child that has not been given work
+
+
+def _spawn() -> subprocess.Popen:
+    root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")])}
+    return subprocess.Popen(
+        [sys.executable, "-m", "reconstruction.poisson_solver"],
+        env=env,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def start_solver() -> None:
+    """Start a child now so that it is ready when `solve_poisson_apart` needs it (at most one
+    waits; an unused one exits when this process closes its stdin at exit)."""
+    global _waiting
+    with _lock:
+        if _waiting is None or _waiting.poll() is not None:
+            try:
+                _waiting = _spawn()
+            except OSError as e:
+                log.warning("could not start the Poisson solver process: %s", e)
+
+
+def _take_solver() -> subprocess.Popen:
+    global _waiting
+    with _lock:
+        child, _waiting = _waiting, None
+    if child is None or child.poll() is not None:
+        child = _spawn()
+    return child
+
+
 def solve_poisson_apart(
     points: np.ndarray, normals: np.ndarray, colors: np.ndarray, depth: int
 ) -> PoissonSolution:
-    """`solve_poisson` in a child process (the same result), or here when that fails."""
+    """`solve_poisson` in a child process (the same result), or here when that fails.
+    `colors`: uint8 (N, 3) or empty."""
     with tempfile.TemporaryDirectory(prefix="poisson-") as tmp:
         given, solved = Path(tmp) / "in.npz", Path(tmp) / "out.npz"
         np.savez(given, points=points, normals=normals, colors=colors, depth=depth)
-        root = str(Path(__file__).resolve().parents[1])
-        env = {
-            **os.environ,
-            "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]),
-        }
-        run = subprocess.run(
-            [sys.executable, "-m", "reconstruction.poisson_solver", str(given), str(solved)],
-            env=env,
-            capture_output=True,
-            text=True,
-            check=False,
-        )
-        if run.returncode == 0 and solved.is_file():
+        try:
+            child = _take_solver()
+            _, err = child.communicate(f"{given}\n{solved}\n")
+            code = child.returncode
+        except OSError as e:
+            code, err = -1, str(e)
+        if code == 0 and solved.is_file():
             with np.load(solved) as f:
                 return PoissonSolution(f["vertices"], f["triangles"], f["colors"], f["density"])
         log.warning(
             "Poisson solver process failed (exit %d: %s); solving in this process",
-            run.returncode,
-            run.stderr.strip().splitlines()[-1:] or "no message",
+            code,
+            (err or "").strip().splitlines()[-1:] or "no message",
         )
     return solve_poisson(points, normals, colors, depth)
 
 
-def _main(given: str, solved: str) -> None:
+def _serve() -> None:
+    """The child: import what the solve needs, then wait for the two paths on stdin (none:
+    the parent did not need it, exit)."""
+    import open3d  # noqa: F401  (the slow import, done before the work arrives)
+
+    given, solved = sys.stdin.readline().strip(), sys.stdin.readline().strip()
+    if not given or not solved:
+        return
     with np.load(given) as f:
         s = solve_poisson(f["points"], f["normals"], f["colors"], int(f["depth"]))
     np.savez(solved, vertices=s.vertices, triangles=s.triangles, colors=s.colors, density=s.density)
 
 
 if __name__ == "__main__":
-    _main(*sys.argv[1:3])
+    _serve()

@@ -270,7 +270,7 @@ def select_pairs(
 
 
 def _overlap(points: np.ndarray, tree: cKDTree, distance_m: float) -> float:
-    d, _ = tree.query(points, distance_upper_bound=distance_m)
+    d, _ = tree.query(points, distance_upper_bound=distance_m, workers=-1)
     return float(np.mean(np.isfinite(d)))
 
 

@@ -207,7 +207,7 @@ def _poisson_solution(inputs: SurfaceInput, config: SurfaceConfig):
 def _unsupported(inputs: SurfaceInput, mesh, config: SurfaceConfig) -> np.ndarray:
     """Vertices farther than poisson_max_distance_m from every fused point."""
     far, _ = cKDTree(inputs.fused.points_W).query(
-        np.asarray(mesh.vertices), distance_upper_bound=config.poisson_max_distance_m
+        np.asarray(mesh.vertices), distance_upper_bound=config.poisson_max_distance_m, workers=-1
     )
     return ~np.isfinite(far)
 

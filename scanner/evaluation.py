@@ -15,6 +15,7 @@ from reconstruction.metrics import (
     evaluate_surface,
     handeye_error,
     sample_surface,
+    truth_sampling,
     visible_mask,
 )
 from reconstruction.pass_alignment import alignment_error
@@ -111,12 +112,13 @@ def evaluate(result: ReconstructionResult, truth, surface, centres, samples: int
     """Metrics of every surface against the truth, and the hand-eye error before/after."""
     out: dict = {"surfaces": {}}
     results = {name: TriangleSurface(m.vertices, m.triangles) for name, m in result.meshes.items()}
+    truth_samples = truth_sampling(surface, centres, samples)
     for name, mesh in results.items():
         out["surfaces"][name] = evaluate_surface(
-            None, surface, result_mesh=mesh, camera_centres_W=centres, n_samples=samples
+            None, surface, result_mesh=mesh, n_samples=samples, truth_samples=truth_samples
         )
     out["surfaces"]["fused_cloud"] = evaluate_surface(
-        result.fused.points_W, surface, camera_centres_W=centres, n_samples=samples
+        result.fused.points_W, surface, n_samples=samples, truth_samples=truth_samples
     )
     before = handeye_error(result.X_FC_nominal, truth.X_FC)
     after = handeye_error(result.X_FC, truth.X_FC)

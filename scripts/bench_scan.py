@@ -52,6 +52,9 @@ def main() -> None:
             {
                 "wall_s": round(r["wall_s"], 2),
                 "stage_s": {k: round(v, 2) for k, v in r["stage_s"].items()},
+                "reconstruction_stage_s": {
+                    k: round(v, 2) for k, v in r.get("reconstruction_stage_s", {}).items()
+                },
                 "robot_motion_s": round(r["robot_motion_s"], 3),
                 "robot_motion_s_naive_order": round(naive, 3),
                 "motion_saving": round(1 - r["robot_motion_s"] / naive, 3) if naive else None,
