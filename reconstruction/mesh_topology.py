@@ -43,6 +43,27 @@ def clean_mesh(mesh: o3d.geometry.TriangleMesh, min_component_fraction: float) -
     mesh.remove_unreferenced_vertices()
 
 
+def canonical_order(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh:
+    """The same mesh with its vertices sorted by coordinates and its triangles by vertex
+    index (each turned, not flipped, to start at its smallest index): one order for one
+    geometry. Open3D's TSDF extraction lists vertices in its parallel hash map's order, which
+    changes from run to run and with the number of threads."""
+    v = np.asarray(mesh.vertices)
+    order = np.lexsort(v.T[::-1])
+    new_index = np.empty_like(order)
+    new_index[order] = np.arange(len(order))
+    t = new_index[np.asarray(mesh.triangles)]
+    first = np.argmin(t, axis=1)
+    t = np.stack([t[np.arange(len(t)), (first + k) % 3] for k in range(3)], axis=1)
+    t = t[np.lexsort(t.T[::-1])]
+    out = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(v[order]), o3d.utility.Vector3iVector(t.astype(np.int32))
+    )
+    if mesh.has_vertex_colors():
+        out.vertex_colors = o3d.utility.Vector3dVector(np.asarray(mesh.vertex_colors)[order])
+    return out
+
+
 def _manifold_edges_keep(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Keep mask that leaves every edge in at most two triangles, dropping the smallest ones
     of an overused edge first (Open3D's `remove_non_manifold_edges` rule; it took 2.8 s on a

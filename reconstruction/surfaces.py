@@ -27,7 +27,12 @@ from reconstruction.filtering import (
     apply_hook,
     o3d_cloud,
 )
-from reconstruction.mesh_topology import clean_mesh, fill_small_holes, triangle_components
+from reconstruction.mesh_topology import (
+    canonical_order,
+    clean_mesh,
+    fill_small_holes,
+    triangle_components,
+)
 from reconstruction.poisson_solver import solve_poisson_apart
 from reconstruction.transforms import invert, rotate_vectors, transform_points
 from reconstruction.views import DepthImage
@@ -304,7 +309,7 @@ def tsdf_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
     # Each integration adds 1 to a voxel's weight and Open3D keeps voxels above the threshold
     # (a threshold of 1.0 dropped every voxel seen once: 12 % of the observed surface).
     threshold = config.tsdf_min_views - 0.5
-    mesh = grid.extract_triangle_mesh(weight_threshold=threshold).to_legacy()
+    mesh = canonical_order(grid.extract_triangle_mesh(weight_threshold=threshold).to_legacy())
     if len(mesh.vertices):
         mesh.remove_vertices_by_mask(~roi.contains(np.asarray(mesh.vertices)))
     return finish_mesh("tsdf", mesh, config)

@@ -3,14 +3,15 @@ or on an existing cluster (`--ray-address`), a line per finished scan, and a fai
 reported without stopping the others.
 
 Each task runs exactly what a single `scanner reconstruct SCAN_DIR` runs (`reconstruct_one`),
-with the same number of threads per library as a run on this machine, so a batch gives the
-same results as running the scans one by one. On a cluster, its nodes need this package
+on one thread per library (Ray's OMP_NUM_THREADS=1 for a one-CPU task), so two scans share two
+cores without oversubscribing them; the results do not depend on the thread count (the Poisson
+solve is single-threaded, the TSDF mesh is put in a canonical order), so a batch gives the same
+results as running the scans one by one. On a cluster, its nodes need this package
 installed and the scan directories at the same paths.
 """
 
 from __future__ import annotations
 
-import os
 import socket
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -78,9 +79,6 @@ def run_batch(
 
     if ray_address is not None:
         check_ray_address(ray_address)
-    # Ray gives each task OMP_NUM_THREADS = its CPUs (1); the libraries' parallel sums then
-    # add in another order than in a run outside Ray. Same threads, same results.
-    threads = os.environ.get("OMP_NUM_THREADS", str(os.cpu_count() or 1))
     started_here = not ray.is_initialized()
     if started_here:
         try:
@@ -90,7 +88,6 @@ def run_batch(
                 include_dashboard=False,
                 log_to_driver=False,
                 logging_level="ERROR",
-                runtime_env={"env_vars": {"OMP_NUM_THREADS": threads}},
             )
         except (ConnectionError, RuntimeError, ValueError) as e:
             where = "locally" if ray_address is None else f"at {ray_address}"

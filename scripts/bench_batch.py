@@ -2,7 +2,7 @@
 
 Scans (or reuses, with --scan-root holding scan0..scan3) four 24-view vase scans with seeds
 0-3, capture only. Prints one JSON line: sequential_s, ray_s (Ray's start included), speedup,
-identical (every Poisson mesh and every metric of the batch equals the sequential one),
+identical (every Poisson and TSDF mesh and the metrics of the batch equal the sequential ones),
 workers.
 """
 
@@ -41,13 +41,15 @@ def _scans(root: Path, count: int, views: int) -> list[Path]:
 
 
 def _same(a: Path, b: Path, report_a: dict, report_b: dict) -> bool:
-    ma = o3d.io.read_triangle_mesh(str(a / "mesh_poisson.ply"))
-    mb = o3d.io.read_triangle_mesh(str(b / "mesh_poisson.ply"))
-    return (
-        np.array_equal(np.asarray(ma.vertices), np.asarray(mb.vertices))
-        and np.array_equal(np.asarray(ma.triangles), np.asarray(mb.triangles))
-        and all(report_a[k] == report_b[k] for k in METRICS)
-    )
+    for name in ("mesh_poisson.ply", "mesh_tsdf.ply"):
+        ma = o3d.io.read_triangle_mesh(str(a / name))
+        mb = o3d.io.read_triangle_mesh(str(b / name))
+        if not (
+            np.array_equal(np.asarray(ma.vertices), np.asarray(mb.vertices))
+            and np.array_equal(np.asarray(ma.triangles), np.asarray(mb.triangles))
+        ):
+            return False
+    return all(report_a[k] == report_b[k] for k in METRICS)
 
 
 def main() -> None:

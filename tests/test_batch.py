@@ -51,10 +51,11 @@ def test_a_batch_equals_one_by_one_and_reports_each_scan(two_scans, tmp_path, ca
     assert "batch: 2 of 3 scans reconstructed" in out
     for scan_dir in two_scans:
         alone = reconstruct_one(scan_dir, ReconstructOptions(out=tmp_path / scan_dir.name))
-        a = _mesh(scan_dir / "results" / "mesh_poisson.ply")
-        b = _mesh(alone.results_dir / "mesh_poisson.ply")
-        np.testing.assert_array_equal(a[0], b[0])
-        np.testing.assert_array_equal(a[1], b[1])
+        for name in ("mesh_poisson.ply", "mesh_tsdf.ply"):
+            a = _mesh(scan_dir / "results" / name)
+            b = _mesh(alone.results_dir / name)
+            np.testing.assert_array_equal(a[0], b[0])
+            np.testing.assert_array_equal(a[1], b[1])
         assert alone.report["chamfer_mm"] == yaml.safe_load(
             (scan_dir / "results" / "report.json").read_text()
         )["chamfer_mm"]

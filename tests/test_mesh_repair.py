@@ -55,3 +55,25 @@ def test_clean_mesh_drops_debris_and_the_fin():
     clean_mesh(mesh, min_component_fraction=0.5)  # the small sphere is debris
     assert len(mesh.triangles) == big
     assert mesh.is_watertight()
+
+
+def test_canonical_order_is_one_order_for_one_geometry_and_keeps_winding():
+    from reconstruction.mesh_topology import canonical_order
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(radius=0.01, resolution=8)
+    v, t = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
+    rng = np.random.default_rng(0)
+    perm = rng.permutation(len(v))
+    new_index = np.empty_like(perm)
+    new_index[perm] = np.arange(len(perm))
+    shuffled = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(v[perm]),
+        o3d.utility.Vector3iVector(new_index[t][rng.permutation(len(t))]),
+    )
+    a, b = canonical_order(sphere), canonical_order(shuffled)
+    np.testing.assert_array_equal(np.asarray(a.vertices), np.asarray(b.vertices))
+    np.testing.assert_array_equal(np.asarray(a.triangles), np.asarray(b.triangles))
+    # Outward normals stay outward: the winding was turned, never flipped.
+    a.compute_triangle_normals()
+    centres = np.asarray(a.vertices)[np.asarray(a.triangles)].mean(axis=1)
+    assert (np.einsum("ij,ij->i", np.asarray(a.triangle_normals), centres) > 0).all()
