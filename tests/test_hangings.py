@@ -118,7 +118,25 @@ def test_the_texture_must_agree_another_object_of_the_same_shape_is_refused():
     assert a.colour_agreement > 0.5
     other, other_colors = _partial_cloud(mesh.vertices, mesh.triangles, X1, 1, _other_stripes)
     b = align_pass(1, other, ref, SeenSpace((), ()), AlignmentConfig(), other_colors, ref_colors)
-    assert not b.verified and any("texture does not match" in f for f in b.failures)
+    # Refused. Which check refuses it depends on which hypothesis scores best, and Open3D's
+    # multi-threaded RANSAC proposes different ones from run to run: the true pose scores near
+    # 0 for its texture, so a wrong pose with a little overlap may win and fail on overlap.
+    assert not b.verified, "another object's texture on the same shape was merged"
+    # At the true pose the shape fits and the texture does not: that is why it cannot verify.
+    from scipy.spatial import cKDTree
+
+    from reconstruction.pass_alignment import _fit
+
+    config = AlignmentConfig()
+    at_truth = _fit(
+        transform_points(X0 @ np.linalg.inv(X1), other),
+        other_colors.mean(axis=1),
+        cKDTree(ref),
+        ref_colors.mean(axis=1),
+        config.inlier_distance_m,
+    )
+    assert at_truth.overlap > 0.5
+    assert at_truth.colour_agreement < config.min_colour_agreement
 
 
 @pytest.mark.parametrize("name", ["bracket", "pebble"])
