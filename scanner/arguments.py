@@ -72,7 +72,10 @@ def add_output_arguments(
 def add_seed_argument(parser: argparse.ArgumentParser, default: int | None = None) -> None:
     """--seed of the simulated errors (robots.truth.ErrorModel)."""
     parser.add_argument(
-        "--seed", type=int, default=default, help="seed of the simulated error model"
+        "--seed",
+        type=int,
+        default=default,
+        help="seed of the simulated error model (default 0)",
     )
 
 

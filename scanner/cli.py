@@ -29,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Eye-in-hand 3D modelling with a Staubli RX60 and a wrist stereo camera. "
         "Runs in a Drake simulation unless a hardware driver is configured.",
     )
+    parser.add_argument("--version", action="version", version=f"scanner {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_scan_parser(sub)
     add_calibrate_parser(sub)
@@ -38,6 +39,15 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_parser(sub)
     add_import_parser(sub)
     return parser
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("scanner")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "(not installed)"
 
 
 def _add_scan_parser(sub) -> None:
@@ -182,9 +192,16 @@ def _add_preview_parser(sub) -> None:
         "viewpoint and render an overview and the stereo pair (with lens distortion and noise).",
     )
     preview.add_argument(
-        "--object", default="vase", help=f"built-in object ({BUILTIN_HELP}) or a mesh file"
+        "--object",
+        default="vase",
+        help=f"built-in object ({BUILTIN_HELP}) or a mesh file (default %(default)s)",
     )
-    preview.add_argument("--out", type=path_arg, default=Path("out/preview"), help="output folder")
+    preview.add_argument(
+        "--out",
+        type=path_arg,
+        default=Path("out/preview"),
+        help="output folder (default %(default)s)",
+    )
     add_seed_argument(preview, default=0)
 
 

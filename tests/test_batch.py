@@ -56,9 +56,10 @@ def test_a_batch_equals_one_by_one_and_reports_each_scan(two_scans, tmp_path, ca
             b = _mesh(alone.results_dir / name)
             np.testing.assert_array_equal(a[0], b[0])
             np.testing.assert_array_equal(a[1], b[1])
-        assert alone.report["chamfer_mm"] == yaml.safe_load(
-            (scan_dir / "results" / "report.json").read_text()
-        )["chamfer_mm"]
+        assert (
+            alone.report["chamfer_mm"]
+            == yaml.safe_load((scan_dir / "results" / "report.json").read_text())["chamfer_mm"]
+        )
 
 
 def _dies_on_the_second(scan_dir: Path, options):

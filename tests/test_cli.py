@@ -88,3 +88,30 @@ def test_calibrate_driver_misuse_is_refused(args, needle, tmp_path):
     r = _run("calibrate", *args, "--out", str(tmp_path / "out"))
     assert r.returncode == 2 and needle in r.stderr, r.stderr
     assert "Traceback" not in r.stderr and not (tmp_path / "out").exists()
+
+
+def test_version_is_the_installed_package_version():
+    from importlib.metadata import version
+
+    r = _run("--version")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == f"scanner {version('scanner')}"
+
+
+def test_seed_and_preview_help_state_their_defaults():
+    from scanner.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    for command, options in (
+        ("scan", ["--seed"]),
+        ("calibrate", ["--seed"]),
+        ("preview", ["--object", "--out", "--seed"]),
+    ):
+        seen = set()
+        for action in sub.choices[command]._actions:
+            if set(action.option_strings) & set(options):
+                seen |= set(action.option_strings)
+                text = action.help % {"default": action.default} if action.help else ""
+                assert "(default " in text, f"{command} {action.option_strings}: {text}"
+        assert seen >= set(options)
