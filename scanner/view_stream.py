@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from reconstruction.camera_model import stereo_camera_to_dict
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import FilteredCloud, filter_view
 from reconstruction.stereo.rectification import compute_rectification
@@ -33,8 +34,6 @@ log = logging.getLogger("scanner.scan")
 
 def settings_key(scan: SavedScan, processing, X_FC: np.ndarray, stereo) -> tuple:
     """What per-view results depend on besides the captures: equal keys, equal results."""
-    from reconstruction.camera_model import stereo_camera_to_dict
-
     return (
         str(scan.root.resolve()),
         repr(to_dict(processing)),

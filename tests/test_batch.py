@@ -15,13 +15,9 @@ from scanner.cli import main
 from scanner.config import load_scan_config
 from scanner.reconstruct_command import ReconstructOptions, reconstruct_one
 from scanner.scan import run_scan
+from tests.tiny_scan import TINY_SCAN
 
-TINY = {
-    "camera": {"width_px": 320, "height_px": 240, "focal_px": 330.0},
-    "views": {"count": 5, "candidates": 200, "roll_candidates": 4},
-    "planner": {"roadmap_milestones": 120, "prm_build_time_s": 20.0},
-    "reconstruct": False,
-}
+TINY = {**TINY_SCAN, "reconstruct": False}
 
 
 @pytest.fixture(scope="module")

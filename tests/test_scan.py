@@ -16,18 +16,13 @@ from reconstruction.errors import ScannerError
 from scanner.captures import CaptureStore
 from scanner.config import ScanConfig, load_scan_config
 from scanner.scan import run_scan
-
-TINY = {
-    "camera": {"width_px": 320, "height_px": 240, "focal_px": 330.0},
-    "views": {"count": 5, "candidates": 200, "roll_candidates": 4},
-    "planner": {"roadmap_milestones": 120, "prm_build_time_s": 20.0},
-}
+from tests.tiny_scan import TINY_SCAN
 
 
 @pytest.fixture(scope="module")
 def tiny_config_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("cfg") / "tiny.yaml"
-    path.write_text(yaml.safe_dump(TINY))
+    path.write_text(yaml.safe_dump(TINY_SCAN))
     return path
 
 

@@ -14,18 +14,13 @@ from scanner.reconstruct import run_reconstruct
 from scanner.scan import run_scan
 from scanner.scan_views import capture_views, geometry_filter, with_roi_centre
 from scanner.view_stream import ViewStream, processing_hidden_s
-
-SMALL = {
-    "camera": {"width_px": 320, "height_px": 240, "focal_px": 330.0},
-    "views": {"count": 5, "candidates": 200, "roll_candidates": 4},
-    "planner": {"roadmap_milestones": 120, "prm_build_time_s": 20.0},
-}
+from tests.tiny_scan import TINY_SCAN
 
 
 @pytest.fixture(scope="module")
 def streamed_scan(tmp_path_factory):
     path = tmp_path_factory.mktemp("cfg") / "small.yaml"
-    path.write_text(yaml.safe_dump(SMALL))
+    path.write_text(yaml.safe_dump(TINY_SCAN))
     return run_scan(load_scan_config(path), tmp_path_factory.mktemp("scans") / "small")
 
 
