@@ -21,7 +21,7 @@ from scanner.captures import CaptureStore
 from scanner.config import load_scan_config
 from scanner.scan import run_scan
 from tests.conftest import shared_data
-from tests.test_scan import TINY
+from tests.tiny_scan import TINY_SCAN
 
 
 def _cli(*args) -> list[str]:
@@ -47,7 +47,7 @@ def _status(scan_dir: Path) -> str | None:
 @pytest.fixture(scope="module")
 def tiny_file(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("cfg") / "tiny.yaml"
-    path.write_text(yaml.safe_dump({**TINY, "views": {**TINY["views"], "count": 4}}))
+    path.write_text(yaml.safe_dump({**TINY_SCAN, "views": {**TINY_SCAN["views"], "count": 4}}))
     return path
 
 
