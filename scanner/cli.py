@@ -111,6 +111,13 @@ def _add_scan_parser(sub) -> None:
         action="store_true",
         help="print the effective configuration (defaults, --config, flags) as YAML and exit",
     )
+    scan.add_argument(
+        "--plan-only",
+        action="store_true",
+        help="plan the views, tour and motions without moving the robot or capturing: writes "
+        "plan.json and plan.png to --out (default scans/OBJECT-TIMESTAMP-plan) and lists the "
+        "unreachable views",
+    )
 
 
 def _add_reconstruct_parser(sub) -> None:
@@ -223,6 +230,8 @@ def _scan(args: argparse.Namespace) -> int:
         hangings=args.hangings,
         max_extra_views=args.max_extra_views,
     )
+    if args.plan_only and (args.resume is not None or args.meshcat):
+        raise ScannerError("--plan-only plans a new scan: do not give --resume or --meshcat")
     if args.resume is not None:
         if args.out is not None or args.force:
             raise ScannerError("--resume DIR continues DIR; do not give --out or --force")
@@ -244,6 +253,11 @@ def _scan(args: argparse.Namespace) -> int:
             return 0
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         name = Path(config.object).stem
+        if args.plan_only:
+            from scanner.plan_only import plan_command
+
+            plan_dir = args.out or Path("scans") / f"{name}-{stamp}-plan"
+            return plan_command(config, plan_dir, args.force)
         out = args.out or Path("scans") / f"{name}-{stamp}"
     with ProgressBar("views") as bar:
         result = run_scan(

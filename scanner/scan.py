@@ -31,7 +31,7 @@ from scanner.report import write_summary
 from scanner.scan_session import interruptible, log_file, meshcat_if
 from scanner.scan_views import model_so_far
 from scanner.view_stream import ViewStream, processing_hidden_s, with_stream
-from scanner.viewpoints import PlannedView, generate_viewpoints, planned_view
+from scanner.viewpoints import PlannedView, ViewPlan, generate_viewpoints, planned_view
 from scanner.world import ScanWorld, WatchedRobot, live_cloud, setup_world
 
 log = logging.getLogger("scanner.scan")
@@ -81,10 +81,9 @@ def _open_resumed(resume: Path, requested: ScanConfig | None) -> SavedScan:
     return saved
 
 
-def _start_new(
-    config: ScanConfig, out_dir: Path | None, force: bool, world: ScanWorld
-) -> tuple[CaptureStore, list[PlannedView]]:
-    """Views around the scan centre, then the scan directory with its manifest (and truth)."""
+def new_scan_views(config: ScanConfig, world: ScanWorld) -> tuple[ViewPlan, list[PlannedView]]:
+    """The viewpoints of a new scan, reached from where the arm stands, and the views of every
+    hanging (`scanner scan --plan-only` plans the same ones)."""
     q_home = world.robot.joint_positions()
     plan = generate_viewpoints(
         config.views,
@@ -100,6 +99,15 @@ def _start_new(
         for p in range(config.hangings)
         for v in plan.views
     ]
+    return plan, views
+
+
+def _start_new(
+    config: ScanConfig, out_dir: Path | None, force: bool, world: ScanWorld
+) -> tuple[CaptureStore, list[PlannedView]]:
+    """Views around the scan centre, then the scan directory with its manifest (and truth)."""
+    plan, views = new_scan_views(config, world)
+    count = len(plan.views)
     plan_info = {
         "reachable_fraction": plan.reachable_fraction,
         "dropped_views": [{"direction": d.direction, "reason": d.reason} for d in plan.dropped],
