@@ -237,14 +237,14 @@ def plan_scan(config: ScanConfig, world: ScanWorld) -> ScanPlan:
     viewpoints: list[PlannedViewpoint] = []
     q_now = q_home
     count = len(views) // config.hangings
+    dropped = _dropped(world, config, plan, q_home) if plan is not None else unreachable
+    kinematics = Kinematics()
     for p in range(config.hangings):
-        dropped = _dropped(world, config, plan, q_home) if plan is not None else unreachable
-        viewpoints += [replace(v, hanging=p) for v in dropped]
         todo = views[p * count : (p + 1) * count]
-        visited, q_now = _plan_pass(
-            world, todo, p, q_now, 1 + sum(v.order is not None for v in viewpoints), Kinematics()
-        )
-        viewpoints += visited
+        first = 1 + sum(v.order is not None for v in viewpoints)
+        visited, q_now = _plan_pass(world, todo, p, q_now, first, kinematics)
+        # A view dropped by the generator is missing from every hanging.
+        viewpoints += visited + [replace(v, hanging=p) for v in dropped]
     return ScanPlan(
         tuple(viewpoints),
         np.asarray(config.scan_center_m, float),
