@@ -67,7 +67,7 @@ class HandEyeCalibration:
     robot poses as reported; corrected_rms_px: after the small robot-pose corrections the
     estimate implies (robot_corrections, (6,) per used pose: rotation vector rad, translation m).
     pixel_sigma_px: the board point standard deviation (px, per coordinate) the final refinement
-    weighted the images with (see `image_noise_px`).
+    weighted the images with (see `image_noise_px`). X_FC_sigma: see the field.
     """
 
     X_FC: np.ndarray
@@ -84,6 +84,14 @@ class HandEyeCalibration:
     robot_corrections: dict[str, np.ndarray] = field(default_factory=dict)
     opencv_failed: dict[str, str] = field(default_factory=dict)
     pixel_sigma_px: float = math.nan
+    # (6, 6) covariance of X_FC: rotation vector (rad) then translation (m), in the camera frame
+    # C (X_FC_true = X_FC @ twist_to_pose(delta)); see `hand_eye_covariance`.
+    X_FC_covariance: np.ndarray = field(default_factory=lambda: np.full((6, 6), np.nan))
+
+    @property
+    def X_FC_sigma(self) -> np.ndarray:
+        """(6,) standard deviations: rotation (rad) about C's x y z, translation (m) along them."""
+        return np.sqrt(np.clip(np.diag(self.X_FC_covariance), 0.0, None))
 
     @property
     def used(self) -> list[str]:
@@ -259,4 +267,28 @@ def calibrate_hand_eye(
         {o.name: xi for o, xi in zip(inliers, refined.corrections)},
         opencv_failed,
         pixel_sigma,
+        hand_eye_covariance(refined.X_FC_covariance, X_FC, settings),
     )
+
+
+def hand_eye_covariance(
+    data_covariance: np.ndarray, X_FC: np.ndarray, settings: CalibrationSettings
+) -> np.ndarray:
+    """X_FC's covariance (6, 6; rotation rad, translation m, in C): what the data determine plus
+    what no hand-eye data can, a constant error of the last joint's zero.
+
+    That offset turns the flange about its own z axis by the same angle in every pose, so
+    X_WF Rz(d) X_FC explains every image exactly as X_WF X_FC' with X_FC' = Rz(d) X_FC: it goes
+    into X_FC whatever the images, and the refinement's covariance cannot see it. Its standard
+    deviation is the robot's rotation accuracy (solver.robot_rotation_sigma_rad). Measured on the
+    simulator (encoder offsets of 0.01 deg per joint): without this term the rotation about the
+    optical axis was off by up to 3.4 of its sigmas in 3 of 10 seeded calibrations.
+    """
+    if not robot_corrections_enabled(settings):
+        return data_covariance
+    R_CF = X_FC[:3, :3].T
+    z_F = np.array([0.0, 0.0, 1.0])
+    # d(delta)/d(angle) of X_FC^-1 Rz(angle) X_FC: the rotation axis and the moment of the
+    # camera origin about the flange axis, both in C.
+    g = np.concatenate([R_CF @ z_F, R_CF @ np.cross(z_F, X_FC[:3, 3])])
+    return data_covariance + settings.robot_rotation_sigma_rad**2 * np.outer(g, g)

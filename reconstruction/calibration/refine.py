@@ -7,7 +7,7 @@ X_WB (plus, optionally, a small correction of each reported robot pose) explain 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -94,6 +94,9 @@ class Refinement:
     corrections: np.ndarray  # (V, 6)
     corrected_rms_px: float  # with the robot corrections applied: what the images alone leave
     evaluations: int
+    # Covariance (6, 6) of X_FC's twist delta: rotation vector (rad) then translation (m), both
+    # in the camera frame C (X_FC_true = X_FC @ twist_to_pose(delta)); see `x_fc_covariance`.
+    X_FC_covariance: np.ndarray = field(default_factory=lambda: np.full((6, 6), np.nan))
 
 
 def _jacobian_sparsity(sensors: list[SensorPoints], n_poses: int, with_corrections: bool):
@@ -179,6 +182,7 @@ def refine_on_board(
         tr_options={"atol": 1e-12, "btol": 1e-12},
     )
     X_FC, X_WB, xi = unpack(result.x)
+    covariance = x_fc_covariance(result.jac, result.fun)
     residuals = reprojection_residuals(sensors, X_WF, X_FC, X_WB)
     corrected = reprojection_residuals(sensors, corrected(xi), X_FC, X_WB)
     return Refinement(
@@ -189,7 +193,32 @@ def refine_on_board(
         xi,
         _rms(corrected),
         int(result.nfev),
+        covariance,
     )
+
+
+def x_fc_covariance(jacobian, residuals: np.ndarray) -> np.ndarray:
+    """Covariance (6, 6) of the first six parameters (X_FC's twist) at a least-squares
+    solution: cov = s^2 (J^T J)^-1 with s^2 = |r|^2 / (m - n), the residual variance per degree
+    of freedom, so the spread the data show (not only the sigmas they were weighted with) sets
+    the scale. The robot-pose corrections and the board pose are in J: their uncertainty widens
+    X_FC's (the marginal, not the conditional, covariance). NaN when J^T J is singular.
+
+    `jacobian` is scipy's (with a robust loss its rows are already reweighted: J^T J is the
+    Gauss-Newton Hessian of the robust cost), `residuals` the unweighted residual vector.
+    """
+    J = jacobian.toarray() if hasattr(jacobian, "toarray") else np.asarray(jacobian, float)
+    m, n = J.shape
+    if m <= n:
+        return np.full((6, 6), np.nan)
+    s2 = float(residuals @ residuals) / (m - n)
+    JTJ = J.T @ J
+    try:
+        # Only the X_FC block is needed: solve for six columns of the inverse.
+        block = np.linalg.solve(JTJ, np.eye(n)[:, :6])[:6]
+    except np.linalg.LinAlgError:
+        return np.full((6, 6), np.nan)
+    return s2 * (block[:, :6] + block[:, :6].T) / 2
 
 
 def _rms(residuals: list[np.ndarray]) -> float:

@@ -199,7 +199,15 @@ def run_eye_in_hand(
         store.root,
         OfflineOptions(board=config.board),
         config.solver,
-        extra_report={"stations_skipped": skipped, "capture_s": capture_s},
+        extra_report={
+            "stations_skipped": skipped,
+            "capture_s": capture_s,
+            "options": {
+                "--stations": len(stations),
+                "--seed": config.error_model.seed,
+                "--driver": config.driver or "simulation",
+            },
+        },
     )
     run.report["calibrate_s"] = time.perf_counter() - t0
     atomic_write_text(run.results_dir / "report.json", json.dumps(run.report, indent=2) + "\n")

@@ -31,6 +31,7 @@ from reconstruction.errors import RefusedResultError, ScannerError
 from reconstruction.yaml_files import read_yaml
 from robots.truth import load_truth
 from scanner.calibrate.cameras_only import CamerasRun, calibrate_cameras, require_board_size
+from scanner.calibrate.corners import ImageLoader, rank_pictures
 from scanner.calibrate.report import CALIBRATION_FILE, build_report, truth_errors, write_results
 from scanner.calibrate.solve import CalibrationRun, Solution, solve
 from scanner.captures import CaptureStore
@@ -245,6 +246,41 @@ def _convention_hint(
     )
 
 
+def _options_used(board: BoardSpec, options: OfflineOptions, is_store: bool) -> dict:
+    """What the solve assumed, as the flags that set it (for the report)."""
+    spec = f"{board.kind} {board.cols}x{board.rows} squares of {board.spacing_m:g} m"
+    used = {"--board": spec + (", inverted" if board.inverted else "")}
+    if not is_store:
+        fmt = options.pose_format
+        used["poses"] = (
+            f"{fmt.layout}, {fmt.length_unit}/{fmt.angle_unit}"
+            + (f", euler {fmt.euler}" if fmt.layout in ("xyz_euler", "euler_xyz") else "")
+            + (", inverse" if fmt.inverse else "")
+        )
+        if options.pose_file is not None:
+            used["--pose-file"] = str(options.pose_file)
+    if options.intrinsics is not None:
+        used["--intrinsics"] = str(options.intrinsics)
+    return used
+
+
+def _store_images(store: CaptureStore) -> ImageLoader:
+    def load(name: str, side: str) -> np.ndarray:
+        return getattr(store.read_capture(int(name)), side)
+
+    return load
+
+
+def _folder_images(root: Path) -> ImageLoader:
+    paths = {p.stem: p for p in _images(root)}
+
+    def load(name: str, side: str) -> np.ndarray:
+        path = paths[name]
+        return _read_gray(path if side == "left" else root / "right" / path.name)
+
+    return load
+
+
 def _truth_of(root: Path) -> tuple[np.ndarray, StereoCamera] | None:
     path = root / "truth.yaml"
     if not path.is_file():
@@ -305,6 +341,13 @@ def calibrate_directory(
         )
     truth = _truth_of(root)
     errors = None if truth is None else truth_errors(solution, *truth)
-    report = build_report(solution, errors, extra_report)
-    path = write_results(results_dir, solution, report)
+    pictures = rank_pictures(board, solution)
+    extra = {"corner_pictures": [p.file_name for p in pictures], **(extra_report or {})}
+    extra["options"] = {
+        **_options_used(board, options, is_store),
+        **(extra_report or {}).get("options", {}),
+    }
+    report = build_report(solution, errors, extra)
+    load = _store_images(store) if is_store else _folder_images(root)
+    path = write_results(results_dir, solution, report, pictures, load)
     return CalibrationRun(Path(out_dir), results_dir, path, report, solution)

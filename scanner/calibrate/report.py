@@ -9,11 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
+from reconstruction.calibration.camera_quality import epipolar_error
 from reconstruction.calibration.file import save_calibration
 from reconstruction.camera_model import StereoCamera
 from reconstruction.metrics import handeye_error
 from reconstruction.transforms import matrix_to_rotvec
-from scanner.calibrate.solve import Solution
+from scanner.calibrate.corners import CornerPicture, ImageLoader, write_pictures
+from scanner.calibrate.judge import figure_lines, overall
+from scanner.calibrate.sigma_check import error_in_sigmas
+from scanner.calibrate.solve import Solution, x_fc_sigma_record
 from scanner.captures import atomic_write_text
 from scanner.results_folder import staged_folder
 from scanner.units import deg, mm
@@ -23,7 +27,12 @@ CALIBRATION_FILE = "calibration.yaml"
 
 def truth_errors(solution: Solution, truth_X_FC: np.ndarray, truth_stereo: StereoCamera) -> dict:
     """Errors against the simulator's truth: ours and each OpenCV method alone."""
-    out = {**handeye_error(solution.hand_eye.X_FC, truth_X_FC), "opencv": {}}
+    he = solution.hand_eye
+    out = {**handeye_error(he.X_FC, truth_X_FC), "opencv": {}}
+    # |error| / sigma per axis (rotation x y z, translation x y z in C): the sigma's honesty.
+    out["X_FC_sigma_ratios"] = [
+        float(v) for v in error_in_sigmas(he.X_FC, he.X_FC_sigma, truth_X_FC)
+    ]
     for name, X in solution.hand_eye.opencv.items():
         out["opencv"][name] = handeye_error(X, truth_X_FC)
     cams = solution.calibration.stereo
@@ -78,10 +87,18 @@ def build_report(solution: Solution, truth: dict | None, extra: dict | None = No
         "hand_eye_seed": he.seed_method,
         "opencv_failed": he.opencv_failed,
         "X_FC": he.X_FC.tolist(),
+        "X_FC_sigma": x_fc_sigma_record(he.X_FC_sigma),
+        "X_FC_sigma_mm": mm(np.max(he.X_FC_sigma[3:])),
+        "X_FC_sigma_deg": deg(np.max(he.X_FC_sigma[:3])),
         "X_FC_opencv": {k: v.tolist() for k, v in he.opencv.items()},
         "X_WB": he.X_WB.tolist(),
         "solve_s": solution.solve_s,
     }
+    stereo = solution.calibration.stereo
+    if stereo is not None:
+        found = [o for o in solution.observations if o.left is not None and o.right is not None]
+        if found:
+            report["epipolar_median_px"] = epipolar_error(stereo, found).median_px
     if truth is not None:
         report["truth"] = truth
     report.update(extra or {})
@@ -92,8 +109,14 @@ def report_text(report: dict) -> str:
     """The report for people (mm and degrees, as report.json)."""
     lines = [
         f"calibration from {report['source']} (printed in mm and degrees)",
-        f"poses: {report['poses_used']} used of {report['poses']}",
+        f"verdict: {overall(report)} (the worst of the figures below)",
+        *figure_lines(report),
     ]
+    if report.get("options"):
+        lines.append(
+            "options: " + ", ".join(f"{k} {v}" for k, v in report["options"].items())
+        )
+    lines.append(f"poses: {report['poses_used']} used of {report['poses']}")
     if report["poses_outliers"]:
         lines.append(f"  rejected as outliers: {', '.join(report['poses_outliers'])}")
     if report["poses_board_not_found"]:
@@ -130,6 +153,19 @@ def report_text(report: dict) -> str:
         f"X_FC: t = ({', '.join(f'{mm(v):.2f}' for v in X[:3, 3])}) mm, rotation vector = "
         f"({', '.join(f'{deg(v):.3f}' for v in rv)}) deg; seed method {report['hand_eye_seed']}"
     )
+    sigma = report.get("X_FC_sigma")
+    if sigma:
+        lines.append(
+            "X_FC 1-sigma in the camera frame C: rotation "
+            f"({', '.join(f'{deg(v):.4f}' for v in sigma['rotation_rad'])}) deg about x y z, "
+            f"translation ({', '.join(f'{mm(v):.3f}' for v in sigma['translation_m'])}) mm"
+        )
+    corners = report.get("corner_pictures")
+    if corners:
+        lines.append(
+            f"corner pictures: {len(corners)} in corners/, worst first (detected corners: green "
+            f"circles, reprojected by the calibration: red crosses); worst {corners[0]}"
+        )
     lines.append("per pose (RMS px, robot correction mm / deg):")
     for p in report["per_pose"]:
         rms = "   -  " if p["rms_px"] is None else f"{p['rms_px']:6.3f}"
@@ -150,6 +186,11 @@ def error_text(errors: dict) -> str:
 
 def _truth_lines(truth: dict) -> list[str]:
     lines = [f"against the simulator's truth: hand-eye {error_text(truth)}"]
+    if "X_FC_sigma_ratios" in truth:
+        lines.append(
+            "  error / sigma per axis (rotation x y z, translation x y z): "
+            + " ".join(f"{v:.2f}" for v in truth["X_FC_sigma_ratios"])
+        )
     for name, e in truth["opencv"].items():
         lines.append(f"  OpenCV {name:<10} alone: {error_text(e)}")
     if "focal_error_px" in truth:
@@ -161,9 +202,18 @@ def _truth_lines(truth: dict) -> list[str]:
     return lines
 
 
-def write_results(results_dir: Path, solution: Solution, report: dict) -> Path:
-    """calibration.yaml, report.json and report.txt, all or nothing (a staged folder)."""
+def write_results(
+    results_dir: Path,
+    solution: Solution,
+    report: dict,
+    pictures: list[CornerPicture] = (),
+    load_image: ImageLoader | None = None,
+) -> Path:
+    """calibration.yaml, report.json, report.txt and the corner pictures (corners/), all or
+    nothing (a staged folder)."""
     with staged_folder(results_dir) as staging:
+        if pictures and load_image is not None:
+            write_pictures(staging / "corners", pictures, load_image)
         atomic_write_text(staging / "report.json", json.dumps(report, indent=2) + "\n")
         atomic_write_text(staging / "report.txt", report_text(report))
         save_calibration(solution.calibration, staging / CALIBRATION_FILE)

@@ -26,6 +26,16 @@ from reconstruction.errors import ScannerError
 from scanner.typed_yaml import to_dict
 
 
+def x_fc_sigma_record(sigma) -> dict:
+    """X_FC's standard deviations for files (SI): rotation about and translation along the
+    camera frame C's axes, X_FC_true = X_FC @ twist_to_pose(rotation, translation)."""
+    return {
+        "rotation_rad": [float(v) for v in sigma[:3]],
+        "translation_m": [float(v) for v in sigma[3:]],
+        "frame": "C",
+    }
+
+
 @dataclass(frozen=True, eq=False)
 class Solution:
     """What one calibration produced (before it is written)."""
@@ -95,6 +105,7 @@ def solve(
         "poses_board_not_found": hand_eye.not_found,
         "board_scatter_m": hand_eye.board_scatter_m.tolist(),
         "hand_eye_seed": hand_eye.seed_method,
+        "X_FC_sigma": x_fc_sigma_record(hand_eye.X_FC_sigma),
     }
     calibration = Calibration(
         hand_eye.X_FC,

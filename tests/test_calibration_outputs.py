@@ -1,0 +1,96 @@
+"""What a calibration shows its user: corner pictures worst first, X_FC's sigma in the file and
+the report, and a report that judges each figure (a simulated eye-in-hand run, 8 stations)."""
+
+import re
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from reconstruction.calibration.file import load_calibration
+from scanner.calibrate.config import CalibrateConfig
+from scanner.calibrate.corners import DETECTED_BGR, REPROJECTED_BGR
+from scanner.calibrate.eye_in_hand import run_eye_in_hand
+from scanner.calibrate.judge import BANDS
+
+NAME = re.compile(r"(\d+)_(worst_)?(\w+)_(left|right)_rms(\d+\.\d+)px\.png")
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    config = CalibrateConfig()
+    config = replace(config, stations=replace(config.stations, count=8))
+    return run_eye_in_hand(config, tmp_path_factory.mktemp("outputs") / "cal")
+
+
+def _pictures(run):
+    return sorted((run.results_dir / "corners").iterdir())
+
+
+def test_one_corner_picture_per_image_worst_first(run):
+    names = [p.name for p in _pictures(run)]
+    assert names == run.report["corner_pictures"]
+    assert len(names) == 2 * run.report["poses_used"] == 16  # left and right of every pose
+    parsed = [NAME.fullmatch(n) for n in names]
+    assert all(parsed)
+    assert parsed[0].group(2) == "worst_" and not any(m.group(2) for m in parsed[1:])
+    rms = [float(m.group(5)) for m in parsed]
+    assert rms == sorted(rms, reverse=True)
+    # Left and right pictures of a pose together give the pose's RMS in the report.
+    by_pose = {}
+    for m in parsed:
+        by_pose.setdefault(m.group(3), []).append(float(m.group(5)))
+    per_pose = {p["name"]: p["rms_px"] for p in run.report["per_pose"]}
+    for name, (a, b) in by_pose.items():
+        # Same corner count in both images (the whole board is in view): RMS of the two.
+        assert np.sqrt((a * a + b * b) / 2) == pytest.approx(per_pose[name], abs=0.01)
+    assert "corner pictures: 16 in corners/" in (run.results_dir / "report.txt").read_text()
+
+
+def test_a_picture_marks_detected_and_reprojected_corners(run):
+    solution = run.solution
+    path = _pictures(run)[0]
+    m = NAME.fullmatch(path.name)
+    image = cv2.imread(str(path))
+    assert image.shape[1] <= 1280
+    obs = next(o for o in solution.observations if o.name == m.group(3))
+    detected = getattr(obs, m.group(4)).pixels
+    # A ring of DETECTED colour around each detected corner, a REPROJECTED cross at its centre
+    # (the corners lie within a fraction of a pixel of the reprojection).
+    green = np.all(np.abs(image.astype(int) - DETECTED_BGR) < 60, axis=2)
+    red = np.all(np.abs(image.astype(int) - REPROJECTED_BGR) < 60, axis=2)
+    for u, v in detected[::7]:
+        u, v = round(u), round(v)
+        assert green[v - 8 : v + 9, u - 8 : u + 9].any()
+        assert red[v - 2 : v + 3, u - 2 : u + 3].any()
+    assert not red[200:, :].all()  # not a flood of colour
+    assert red.sum() < 0.02 * red.size and green.sum() < 0.02 * green.size
+
+
+def test_x_fc_sigma_in_the_file_and_the_report(run):
+    quality = load_calibration(run.calibration_file).quality
+    sigma = quality["X_FC_sigma"]
+    assert sigma["frame"] == "C"
+    t, r = np.array(sigma["translation_m"]), np.array(sigma["rotation_rad"])
+    assert np.all((t > 1e-6) & (t < 1e-3)) and np.all((r > 1e-6) & (r < np.radians(0.2)))
+    assert run.report["X_FC_sigma"] == sigma
+    # The truth's error lies within 3 sigma on every axis of this run.
+    assert max(run.report["truth"]["X_FC_sigma_ratios"]) < 3
+    text = (run.results_dir / "report.txt").read_text()
+    mm = re.search(r"translation \(([\d.]+), ([\d.]+), ([\d.]+)\) mm", text)
+    assert [float(v) for v in mm.groups()] == pytest.approx(1e3 * t, abs=1e-3)
+
+
+def test_the_report_judges_every_figure_and_names_the_options(run):
+    text = (run.results_dir / "report.txt").read_text()
+    for key, band in BANDS.items():
+        if run.report.get(key) is None:
+            continue
+        line = next(line for line in text.splitlines() if line.strip().startswith(band.name))
+        assert f"good < {band.good:g} {band.unit}, poor > {band.poor:g} {band.unit}" in line
+        assert f"[{band.verdict(run.report[key])}]" in line
+    assert run.report["epipolar_median_px"] < 0.2  # the true cameras' pair rectifies well
+    assert re.search(r"^verdict: (good|fair|poor)", text, re.M)
+    options = next(line for line in text.splitlines() if line.startswith("options:"))
+    assert "--board chessboard 10x7" in options and "--stations 8" in options
