@@ -129,10 +129,9 @@ def _dropped(world: ScanWorld, config: ScanConfig, plan, q_home) -> list[Planned
             continue
         direction = np.asarray(d.direction, float)
         why = why_unreachable(world.planner, centre, direction, config.views, q_home)
-        # The generator found no option where the diagnosis finds one: only if the options'
-        # cost ordering dropped them all, which it does not; say so rather than guess.
-        why = why or ("in_collision", d.reason, None)
-        out.append(_unreached(None, direction, why))
+        # The diagnosis tries the generator's rolls with the planner's checks, so it finds no
+        # free solution either; should they ever disagree, the generator's own words are kept.
+        out.append(_unreached(None, direction, why or ("no_ik_solution", d.reason, None)))
     return out
 
 
