@@ -90,7 +90,7 @@ def test_no_board_anywhere_says_why(tmp_path, capsys):
         cv2.imwrite(str(folder / f"img{k}.png"), np.full((480, 640), 128, np.uint8))
     assert _calibrate(folder, tmp_path / "out") == 2
     message = _error(capsys)
-    assert "not found in any image" in message and "no contrast" in message
+    assert "not found in any of the 4 images" in message and "no contrast" in message
 
 
 def test_a_wrong_board_size_says_what_was_seen(tmp_path, capsys):

@@ -114,6 +114,14 @@ def require_poses(usable: int, total: int, missing: Sequence[str], need: int) ->
     """ScannerError saying how many more poses to record, and why, when usable < need."""
     if usable >= need:
         return
+    if usable == 0 and total > 0:
+        # Nothing found anywhere is a description problem, not a shortage of poses.
+        example = f" ({missing[0]})" if missing else ""
+        raise ScannerError(
+            f"the board was not found in any of the {total} images{example}: check the board's "
+            "size, counted in squares (not inner corners), and its polarity (white pattern on "
+            "black, or black on white) before recording more poses"
+        )
     why = f"; the board was not found in: {', '.join(missing)}" if missing else ""
     raise ScannerError(
         f"only {usable} of {total} poses are usable, calibration needs at least {need} (hand-eye "

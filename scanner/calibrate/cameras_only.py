@@ -26,6 +26,7 @@ from reconstruction.calibration.observations import PoseObservation
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.errors import ScannerError
 from robots.camera_tool import nominal_X_FC
+from scanner.calibrate.solve import no_board_anywhere
 from scanner.captures import atomic_write_text
 from scanner.results_folder import require_replaceable, staged_folder
 
@@ -98,12 +99,7 @@ def _observations(
                     larger.append(larger_chessboard(board, image))
         observations.append(PoseObservation(left_path.stem, None, left, right, why))
     if not any(o.left is not None for o in observations):
-        example = next(o for o in observations)
-        raise ScannerError(
-            f"{root}: the board ({board.kind}, {board.cols}x{board.rows}) was not found in any "
-            f"image ({example.name}: {example.not_found or 'not found'}); check --board, "
-            "--board-size and --board-spacing"
-        )
+        raise ScannerError(f"{root}: {no_board_anywhere(board, observations)}")
     require_board_size(root, board, larger)
     return observations, size
 

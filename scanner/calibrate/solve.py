@@ -26,6 +26,19 @@ from reconstruction.errors import ScannerError
 from scanner.typed_yaml import to_dict
 
 
+def no_board_anywhere(board: BoardSpec, observations) -> str:
+    """The advice when no image shows the board: its description is wrong, not the poses few."""
+    example = next((o for o in observations if o.not_found), observations[0])
+    polarity = "white on black (--inverted given)" if board.inverted else "black on white"
+    return (
+        f"the board ({board.kind}, {board.cols}x{board.rows}, {polarity}) was not found in any "
+        f"of the {len(observations)} images ({example.name}: {example.not_found or 'not found'}"
+        "): more poses will not help; check --board-size (counted in squares, not inner "
+        "corners; circles for a circle grid), --inverted (a white pattern on black) and "
+        "--board / --board-spacing"
+    )
+
+
 def x_fc_sigma_record(sigma) -> dict:
     """X_FC's standard deviations for files (SI): rotation about and translation along the
     camera frame C's axes, X_FC_true = X_FC @ twist_to_pose(rotation, translation)."""
@@ -74,6 +87,8 @@ def solve(
         for o in observations
         if o.left is None
     ]
+    if observations and not found:
+        raise ScannerError(no_board_anywhere(board, observations))
     require_poses(len(found), len(observations), missing, settings.min_poses)
     stereo_cal, camera_rms = None, None
     if intrinsics is None:
