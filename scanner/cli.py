@@ -8,29 +8,38 @@ from pathlib import Path
 
 from reconstruction.errors import ScannerError
 from scanner.arguments import (
+    ConfigDefault,
+    ScannerArgumentParser,
+    add_config_option,
     add_driver_argument,
     add_output_arguments,
     add_seed_argument,
     for_flag,
+    mesh_formats_arg,
     name_arg,
     path_arg,
     positive_float,
+    show_formats,
     worker_count,
 )
 from scanner.calibrate.arguments import add_calibrate_parser
 from scanner.exchange import add_export_parser, add_import_parser
 
 BUILTIN_HELP = "vase, bracket, pebble"
+# Where scan's flags take their defaults from when neither they nor --config give a value.
+SCAN_CONFIG = "scanner.config:ScanConfig"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = ScannerArgumentParser(
         prog="scanner",
         description="Eye-in-hand 3D modelling with a Staubli RX60 and a wrist stereo camera. "
         "Runs in a Drake simulation unless a hardware driver is configured.",
     )
     parser.add_argument("--version", action="version", version=f"scanner {_version()}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=ScannerArgumentParser
+    )
     _add_scan_parser(sub)
     add_calibrate_parser(sub)
     _add_reconstruct_parser(sub)
@@ -57,22 +66,34 @@ def _add_scan_parser(sub) -> None:
         description="Scan an object in the simulated work cell: viewpoints on a sphere around it, "
         "collision-free motions, stereo captures saved to a scan directory, then reconstruction.",
     )
-    scan.add_argument(
+    add_config_option(
+        scan,
         "--object",
         type=name_arg,
         help=f"built-in object ({BUILTIN_HELP}), a mesh file (.obj/.ply/.stl), or the name of "
-        "a mesh in a folder of $SCANNER_MESH_PATH; default vase",
+        "a mesh in a folder of $SCANNER_MESH_PATH (default %(config_default)s)",
+        config=ConfigDefault(SCAN_CONFIG, "object"),
     )
-    scan.add_argument(
+    add_config_option(
+        scan,
         "--size",
         type=positive_float,
-        help="largest extent of the object in metres (default 0.2)",
+        help="largest extent of the object in metres (default %(config_default)s)",
+        config=ConfigDefault(SCAN_CONFIG, "cell.object_size_m"),
     )
-    scan.add_argument("--views", type=int, help="number of views (default 24)")
-    scan.add_argument(
+    add_config_option(
+        scan,
+        "--views",
+        type=int,
+        help="number of views (default %(config_default)s)",
+        config=ConfigDefault(SCAN_CONFIG, "views.count"),
+    )
+    add_config_option(
+        scan,
         "--radius",
         type=positive_float,
-        help="distance of the rig from the scan centre in metres (default 0.5)",
+        help="distance of the rig from the scan centre in metres (default %(config_default)s)",
+        config=ConfigDefault(SCAN_CONFIG, "views.radius_m"),
     )
     add_output_arguments(
         scan,
@@ -80,43 +101,61 @@ def _add_scan_parser(sub) -> None:
         "replace an existing scan directory given with --out",
     )
     add_seed_argument(scan)
-    scan.add_argument(
+    add_config_option(
+        scan,
         "--max-extra-views",
         type=int,
         metavar="K",
         help="after each hanging's planned views, up to K next-best views where the model so "
-        "far leaves the most surface unseen (default 0)",
+        "far leaves the most surface unseen (default %(config_default)s)",
+        config=ConfigDefault(SCAN_CONFIG, "views.max_extra_views"),
     )
-    scan.add_argument(
+    add_config_option(
+        scan,
         "--hangings",
         type=int,
         help="passes over the object, re-hung between them (the simulator turns it; on "
-        "hardware the operator is asked), aligned and merged into one model (default 1)",
+        "hardware the operator is asked), aligned and merged into one model "
+        "(default %(config_default)s)",
+        config=ConfigDefault(SCAN_CONFIG, "hangings"),
     )
-    scan.add_argument("--config", type=path_arg, help="scan configuration YAML")
+    scan.add_argument(
+        "--config",
+        type=path_arg,
+        help="scan configuration YAML; flags given win over it (default: none, the built-in "
+        "defaults stated here)",
+    )
     scan.add_argument(
         "--calibration",
         type=path_arg,
-        help="calibration file from `scanner calibrate` (stereo model and hand-eye X_FC)",
+        help="calibration file from `scanner calibrate` (stereo model and hand-eye X_FC) "
+        "(default: the --config file's calibration_file, else the nominal camera and mount)",
     )
     add_driver_argument(scan, "scan")
-    scan.add_argument("--resume", type=path_arg, metavar="DIR", help="continue an interrupted scan")
+    scan.add_argument(
+        "--resume",
+        type=path_arg,
+        metavar="DIR",
+        help="continue an interrupted scan (default: none, start a new scan)",
+    )
     scan.add_argument(
         "--meshcat",
         action="store_true",
-        help="show the robot, planned paths and the growing cloud live in Drake's Meshcat",
+        help="show the robot, planned paths and the growing cloud live in Drake's Meshcat "
+        "(default: off)",
     )
     scan.add_argument(
         "--print-config",
         action="store_true",
-        help="print the effective configuration (defaults, --config, flags) as YAML and exit",
+        help="print the effective configuration (defaults, --config, flags) as YAML and exit "
+        "(default: off)",
     )
     scan.add_argument(
         "--plan-only",
         action="store_true",
         help="plan the views, tour and motions without moving the robot or capturing: writes "
         "plan.json and plan.png to --out (default scans/OBJECT-TIMESTAMP-plan) and lists the "
-        "unreachable views",
+        "unreachable views (default: off)",
     )
 
 
@@ -137,21 +176,28 @@ def _add_reconstruct_parser(sub) -> None:
     reconstruct.add_argument(
         "--config",
         type=path_arg,
-        help="processing YAML (stereo:, reconstruction:, ...); default: the scan's own settings",
+        help="processing YAML (stereo:, reconstruction:, ...) (default: the scan's own settings)",
     )
     reconstruct.add_argument(
         "--calibration",
         type=path_arg,
-        help="use this calibration's stereo model and X_FC instead of the scan's",
+        help="use this calibration's stereo model and X_FC instead of the scan's (default: the "
+        "scan's own)",
     )
     add_output_arguments(
         reconstruct,
         "results folder (default SCAN_DIR/results, or results-N when that holds one already)",
         "replace the reconstruction already in --out",
     )
-    reconstruct.add_argument("--no-icp", action="store_true", help="poses from the robot only")
     reconstruct.add_argument(
-        "--no-handeye", action="store_true", help="keep X_FC as given (no loop-based correction)"
+        "--no-icp",
+        action="store_true",
+        help="poses from the robot only (default: off, ICP as the settings say)",
+    )
+    reconstruct.add_argument(
+        "--no-handeye",
+        action="store_true",
+        help="keep X_FC as given, no loop-based correction (default: off, as the settings say)",
     )
     reconstruct.add_argument(
         "--workers",
@@ -164,10 +210,13 @@ def _add_reconstruct_parser(sub) -> None:
         help="run the tasks on this Ray cluster (HOST:PORT, or auto) instead of a local Ray; "
         "its nodes need scanner installed and the scans at the same paths (default: local)",
     )
-    reconstruct.add_argument(
+    add_config_option(
+        reconstruct,
         "--formats",
-        type=name_arg,
-        help="mesh file formats, comma separated from ply,obj,stl (default ply)",
+        type=mesh_formats_arg,
+        help="mesh file formats, comma separated from ply,obj,stl (default %(config_default)s, "
+        "or what the scan's or --config's processing.mesh_formats says)",
+        config=ConfigDefault("scanner.config:ProcessingConfig", "mesh_formats", show_formats),
     )
 
 
@@ -181,11 +230,13 @@ def _add_merge_parser(sub) -> None:
     )
     merge.add_argument("scan_dirs", type=path_arg, nargs="+", metavar="SCAN_DIR")
     merge.add_argument(
-        "--config", type=path_arg, help="processing YAML; default: the first scan's settings"
+        "--config",
+        type=path_arg,
+        help="processing YAML (default: the first scan's settings)",
     )
     add_output_arguments(
         merge,
-        "results folder to create",
+        "results folder to create (required, no default)",
         "replace the merged model already in --out",
         required=True,
     )

@@ -54,7 +54,10 @@ class ProcessingConfig:
     def __post_init__(self) -> None:
         bad = [f for f in self.mesh_formats if f not in MESH_SUFFIXES]
         if bad:
-            raise ScannerError(f"processing.mesh_formats: {bad} not in {', '.join(MESH_SUFFIXES)}")
+            raise ScannerError(
+                f"processing.mesh_formats: {', '.join(map(repr, bad))} not known; expected "
+                f"suffixes from {', '.join(MESH_SUFFIXES)}"
+            )
         check_fields("processing", self)
 
 

@@ -46,10 +46,15 @@ def add_export_parser(sub) -> None:
     export.add_argument(
         "calibration", type=path_arg, metavar="CALIBRATION_FILE", help="from `scanner calibrate`"
     )
-    export.add_argument("--format", type=name_arg, required=True, help="opencv, ros or ros-tf")
+    export.add_argument(
+        "--format",
+        type=name_arg,
+        required=True,
+        help="opencv, ros or ros-tf (required, no default)",
+    )
     add_output_arguments(
         export,
-        "folder to write into",
+        "folder to write into (required, no default)",
         "replace files of this format already in --out",
         required=True,
     )
@@ -73,10 +78,12 @@ def add_import_parser(sub) -> None:
         "is the camera tool's nominal mount (what a scan assumes without a calibration).",
     )
     imp.add_argument("folder", type=path_arg, metavar="DIR", help="folder holding the files")
-    imp.add_argument("--format", type=name_arg, required=True, help="opencv or ros")
+    imp.add_argument(
+        "--format", type=name_arg, required=True, help="opencv or ros (required, no default)"
+    )
     add_output_arguments(
         imp,
-        "calibration file to write",
+        "calibration file to write (required, no default)",
         "replace an existing --out file",
         required=True,
         dest="out_file",
@@ -87,20 +94,22 @@ def add_import_parser(sub) -> None:
         type=path_arg,
         metavar="FILE",
         help="X_FC from a static transform YAML (`scanner export --format ros-tf`, "
-        "easy_handeye or easy_handeye2, eye-in-hand)",
+        "easy_handeye or easy_handeye2, eye-in-hand) (default: none, the camera tool's "
+        "nominal mount)",
     )
     imp.add_argument(
         "--image-size",
         type=image_size_arg,
         metavar="WxH",
-        help="opencv: image size in pixels when intrinsics.yml has none (stereo_calib's)",
+        help="opencv: image size in pixels when intrinsics.yml has none (stereo_calib's) "
+        "(default: none, the size intrinsics.yml gives)",
     )
     imp.add_argument(
         "--length-unit",
         type=name_arg,
         metavar="UNIT",
-        help="opencv: unit of T when extrinsics.yml names none: m (default), cm, mm, or the "
-        "board square size in metres (stereo_calib calibrates in squares)",
+        help="opencv: unit of T when extrinsics.yml names none: m, cm, mm, or the board "
+        "square size in metres, as stereo_calib calibrates in squares (default m)",
     )
 
 

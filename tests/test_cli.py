@@ -112,6 +112,7 @@ def test_seed_and_preview_help_state_their_defaults():
         for action in sub.choices[command]._actions:
             if set(action.option_strings) & set(options):
                 seen |= set(action.option_strings)
-                text = action.help % {"default": action.default} if action.help else ""
+                # As --help prints it (some defaults are read from the configuration).
+                text = sub.choices[command]._get_formatter()._expand_help(action)
                 assert "(default " in text, f"{command} {action.option_strings}: {text}"
         assert seen >= set(options)

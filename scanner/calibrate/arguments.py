@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 
 from scanner.arguments import (
+    ConfigDefault,
+    add_config_option,
     add_driver_argument,
     add_output_arguments,
     add_seed_argument,
@@ -13,6 +15,14 @@ from scanner.arguments import (
     path_arg,
     positive_float,
 )
+
+# Where the flags take their defaults from when neither they nor --config give a value.
+CALIBRATE_CONFIG = "scanner.calibrate.config:CalibrateConfig"
+POSE_FORMAT = "reconstruction.calibration.pose_files:PoseFormat"
+
+
+def _board_size(board) -> str:
+    return f"{board.cols}x{board.rows}"
 
 
 def add_calibrate_parser(sub) -> None:
@@ -33,17 +43,33 @@ def add_calibrate_parser(sub) -> None:
 def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
     # Names are validated by the calibration code (one-line errors listing the valid ones), so
     # no argparse `choices` here.
-    add_output_arguments(calibrate, "calibration directory", "replace an existing --out")
-    calibrate.add_argument("--config", type=path_arg, help="calibration YAML file")
+    add_output_arguments(
+        calibrate,
+        "calibration directory (default calibrations/calib-TIMESTAMP, with --eye-to-hand "
+        "calibrations/eye-to-hand-TIMESTAMP; with --offline the recorded directory itself, or "
+        "calibrations/NAME-TIMESTAMP for another system's images)",
+        "replace an existing --out",
+    )
+    calibrate.add_argument(
+        "--config",
+        type=path_arg,
+        help="calibration YAML file; flags given win over it (default: none, the built-in "
+        "defaults stated here)",
+    )
     calibrate.add_argument(
         "--resume",
         type=path_arg,
         metavar="DIR",
-        help="finish an interrupted eye-in-hand run: capture the stations it lacks, then solve",
+        help="finish an interrupted eye-in-hand run: capture the stations it lacks, then solve "
+        "(default: none, start a new run)",
     )
     add_seed_argument(calibrate)
-    calibrate.add_argument(
-        "--stations", type=int, help="number of board views to take (default 20)"
+    add_config_option(
+        calibrate,
+        "--stations",
+        type=int,
+        help="number of board views to take (default %(config_default)s)",
+        config=ConfigDefault(CALIBRATE_CONFIG, "stations.count"),
     )
     add_driver_argument(
         calibrate, "eye-in-hand", "; the board stands where the configuration's placement says"
@@ -51,29 +77,55 @@ def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
 
 
 def _add_board_arguments(calibrate: argparse.ArgumentParser) -> None:
-    board = calibrate.add_argument_group("board (simulation default: chessboard 10x7, 0.02 m)")
-    board.add_argument("--board", type=name_arg, help="charuco, chessboard or circles_asymmetric")
-    board.add_argument(
+    board = calibrate.add_argument_group(
+        "board (defaults: the configuration's board; with --offline, the board a calibration "
+        "directory recorded, else --board, --board-size and --board-spacing are needed)"
+    )
+    add_config_option(
+        board,
+        "--board",
+        type=name_arg,
+        help="charuco, chessboard or circles_asymmetric (default %(config_default)s)",
+        config=ConfigDefault(CALIBRATE_CONFIG, "board.kind"),
+    )
+    add_config_option(
+        board,
         "--board-size",
         type=name_arg,
         metavar="COLSxROWS",
-        help="squares (chessboard, charuco) or circles (circle grid) across x down, e.g. 7x11",
+        help="squares (chessboard, charuco) or circles (circle grid) across x down, e.g. 7x11 "
+        "(default %(config_default)s)",
+        config=ConfigDefault(CALIBRATE_CONFIG, "board", _board_size),
     )
-    board.add_argument(
+    add_config_option(
+        board,
         "--board-spacing",
         type=positive_float,
         metavar="M",
-        help="square size, or circle distance along a row, in metres",
+        help="square size, or circle distance along a row, in metres "
+        "(default %(config_default)s)",
+        config=ConfigDefault(CALIBRATE_CONFIG, "board.spacing_m"),
     )
-    board.add_argument(
+    add_config_option(
+        board,
         "--marker-size",
         type=positive_float,
         metavar="M",
-        help="ChArUco marker size in metres",
+        help="ChArUco marker size in metres (default %(config_default)s; with --offline "
+        "0.75 x --board-spacing)",
+        config=ConfigDefault(CALIBRATE_CONFIG, "board.marker_m"),
     )
-    board.add_argument("--dictionary", type=name_arg, help="ArUco dictionary, e.g. DICT_5X5_100")
+    add_config_option(
+        board,
+        "--dictionary",
+        type=name_arg,
+        help="ArUco dictionary, e.g. DICT_4X4_50 (default %(config_default)s)",
+        config=ConfigDefault(CALIBRATE_CONFIG, "board.dictionary"),
+    )
     board.add_argument(
-        "--inverted", action="store_true", help="white pattern on black (e.g. white dots)"
+        "--inverted",
+        action="store_true",
+        help="white pattern on black, e.g. white dots (default: off)",
     )
 
 
@@ -84,39 +136,83 @@ def _add_offline_arguments(calibrate: argparse.ArgumentParser) -> None:
         type=path_arg,
         metavar="DIR",
         help="a calibration directory made by this tool, or images with robot pose files "
-        "(same name, .txt) or left/ and right/ image folders",
+        "(same name, .txt) or left/ and right/ image folders (default: none, move the robot "
+        "in the simulator or with --driver)",
     )
     offline.add_argument(
         "--pose-convention",
         type=name_arg,
         help="robot pose preset: open3dv, yaskawa, fanuc, kuka, staubli, abb, ur, matrix_m, "
-        "matrix_mm",
+        "matrix_mm (default: none, the layout, sequence and units below)",
     )
-    offline.add_argument(
+    add_config_option(
+        offline,
         "--pose-layout",
         type=name_arg,
-        help="matrix, xyz_euler, euler_xyz, xyz_quat, xyz_wxyz or xyz_rotvec",
+        help="matrix, xyz_euler, euler_xyz, xyz_quat, xyz_wxyz or xyz_rotvec "
+        "(default %(config_default)s, or the --pose-convention's)",
+        config=ConfigDefault(POSE_FORMAT, "layout"),
+    )
+    add_config_option(
+        offline,
+        "--euler",
+        type=name_arg,
+        help="Euler sequence: xyz (extrinsic) ... XYZ (intrinsic) "
+        "(default %(config_default)s, or the --pose-convention's)",
+        config=ConfigDefault(POSE_FORMAT, "euler"),
+    )
+    add_config_option(
+        offline,
+        "--length-unit",
+        type=name_arg,
+        help="m or mm (default %(config_default)s, or the --pose-convention's)",
+        config=ConfigDefault(POSE_FORMAT, "length_unit"),
+    )
+    add_config_option(
+        offline,
+        "--angle-unit",
+        type=name_arg,
+        help="deg or rad (default %(config_default)s, or the --pose-convention's)",
+        config=ConfigDefault(POSE_FORMAT, "angle_unit"),
     )
     offline.add_argument(
-        "--euler", type=name_arg, help="Euler sequence: xyz (extrinsic) ... XYZ (intrinsic)"
-    )
-    offline.add_argument("--length-unit", type=name_arg, help="m or mm")
-    offline.add_argument("--angle-unit", type=name_arg, help="deg or rad")
-    offline.add_argument(
-        "--inverse-poses", action="store_true", help="the files hold the base in the flange"
+        "--inverse-poses",
+        action="store_true",
+        help="the files hold the base in the flange (default: off, the flange in the base)",
     )
     offline.add_argument(
-        "--pose-file", type=path_arg, help="one pose per line, in image name order"
+        "--pose-file",
+        type=path_arg,
+        help="one pose per line, in image name order (default: none, a NAME.txt beside each "
+        "image)",
     )
     offline.add_argument(
         "--intrinsics",
         type=path_arg,
-        help="known intrinsics: calibration/stereo YAML, or text (K row by row, k1 k2 p1 p2 k3)",
+        help="known intrinsics: calibration/stereo YAML, or text (K row by row, k1 k2 p1 p2 k3) "
+        "(default: none, estimated from the images)",
     )
 
 
 def _add_eye_to_hand_arguments(calibrate: argparse.ArgumentParser) -> None:
     e2h = calibrate.add_argument_group("eye-to-hand (static camera, marker on the flange)")
-    e2h.add_argument("--eye-to-hand", action="store_true", help="calibrate a static camera")
-    e2h.add_argument("--held-out", type=int, help="random test points (default 100)")
-    e2h.add_argument("--grid-spacing", type=positive_float, metavar="M", help="grid spacing (m)")
+    e2h.add_argument(
+        "--eye-to-hand",
+        action="store_true",
+        help="calibrate a static camera (default: off, the wrist camera)",
+    )
+    add_config_option(
+        e2h,
+        "--held-out",
+        type=int,
+        help="random test points (default %(config_default)s)",
+        config=ConfigDefault(CALIBRATE_CONFIG, "eye_to_hand.held_out"),
+    )
+    add_config_option(
+        e2h,
+        "--grid-spacing",
+        type=positive_float,
+        metavar="M",
+        help="spacing of the calibration grid in metres (default %(config_default)s)",
+        config=ConfigDefault(CALIBRATE_CONFIG, "eye_to_hand.grid_spacing_m"),
+    )

@@ -60,8 +60,42 @@ def board_from_args(args: argparse.Namespace, base: BoardSpec | None) -> BoardSp
             )
         if changes["kind"] == "charuco" and "marker_m" not in changes:
             changes["marker_m"] = 0.75 * changes["spacing_m"]
-        return BoardSpec(**changes)
-    return replace(base, **changes)
+        return for_flag(_board_flags(changes), lambda: BoardSpec(**changes))
+    return for_flag(_board_flags(changes), lambda: replace(base, **changes))
+
+
+BOARD_FLAGS = {
+    "kind": "--board",
+    "cols": "--board-size",
+    "spacing_m": "--board-spacing",
+    "marker_m": "--marker-size",
+    "dictionary": "--dictionary",
+    "inverted": "--inverted",
+}
+
+
+def _board_flags(changes: dict) -> str:
+    """The flags that described the board, for its errors (which may involve several)."""
+    return ", ".join(flag for key, flag in BOARD_FLAGS.items() if key in changes)
+
+
+POSE_FLAGS = {
+    "layout": "--pose-layout",
+    "euler": "--euler",
+    "length_unit": "--length-unit",
+    "angle_unit": "--angle-unit",
+}
+
+
+def pose_format_from_args(args: argparse.Namespace):
+    """The preset, then each flag on it; a bad value is reported with its flag (each field is
+    checked on its own, so the order does not matter)."""
+    fmt = for_flag("--pose-convention", lambda: pose_format(args.pose_convention))
+    for key, flag in POSE_FLAGS.items():
+        value = getattr(args, flag[2:].replace("-", "_"))
+        if value is not None:
+            fmt = for_flag(flag, lambda f=fmt, k=key, v=value: replace(f, **{k: v}))
+    return replace(fmt, inverse=True) if args.inverse_poses else fmt
 
 
 def _stamp() -> str:
@@ -183,14 +217,7 @@ def run_calibrate_command(args: argparse.Namespace) -> int:
         root = args.offline
         is_store = (root / "scan.yaml").is_file()
         board = board_from_args(args, None)
-        fmt = pose_format(
-            args.pose_convention,
-            layout=args.pose_layout,
-            euler=args.euler,
-            length_unit=args.length_unit,
-            angle_unit=args.angle_unit,
-            inverse=True if args.inverse_poses else None,
-        )
+        fmt = pose_format_from_args(args)
         options = OfflineOptions(board, fmt, args.pose_file, ".txt", args.intrinsics)
         out = args.out
         if out is None and not is_store:
