@@ -6,10 +6,22 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+import yaml
+
+from reconstruction.mesh_export import (
+    MeshExportConfig,
+    MeshExports,
+    export_record,
+    prepare_exports,
+)
 from reconstruction.mesh_topology import mesh_quality
 from reconstruction.pipeline import ReconstructionResult
 from reconstruction.surfaces import save_cloud, save_mesh
 from reconstruction.transforms import pose_difference
+
+# Beside the meshes: their unit, frame and decimation (a reader of an STL has no other way to
+# know them).
+MESH_EXPORT_FILE = "mesh_export.yaml"
 
 
 def _quality_record(quality, longest: int = 10) -> dict:
@@ -112,21 +124,37 @@ def _fit_record(r) -> dict:
     }
 
 
+def export_files(exports: MeshExports, mesh_suffixes: Sequence[str]) -> dict[str, list[str]]:
+    """File names of each exported mesh, by mesh name."""
+    return {
+        e.name: [f"{exports.file_stem(e.name)}{suffix}" for suffix in mesh_suffixes]
+        for e in exports.meshes
+    }
+
+
 def save_outputs(
-    result: ReconstructionResult, directory: Path, mesh_suffixes: Sequence[str] = (".ply",)
+    result: ReconstructionResult,
+    directory: Path,
+    mesh_suffixes: Sequence[str] = (".ply",),
+    exports: MeshExports | None = None,
 ) -> dict[str, Path]:
-    """Write fused_cloud.ply and mesh_<method><suffix> for each mesh and suffix; returns the
-    paths by name."""
+    """Write fused_cloud.ply, each exported mesh in each format (default: every mesh as it is,
+    metres in W, mesh_<method><suffix>) and mesh_export.yaml, which states the meshes' unit,
+    frame (X_WO) and decimation; returns the paths by name."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
+    exports = exports or prepare_exports(result.meshes, MeshExportConfig())
     paths = {"fused_cloud": directory / "fused_cloud.ply"}
     save_cloud(result.fused, paths["fused_cloud"])
     if result.fused_nominal is not None:
         paths["fused_cloud_nominal"] = directory / "fused_cloud_nominal.ply"
         save_cloud(result.fused_nominal, paths["fused_cloud_nominal"])
-    for name, mesh in result.meshes.items():
-        for suffix in mesh_suffixes:
-            path = directory / f"mesh_{name}{suffix}"
-            save_mesh(mesh, path)
-            paths[f"mesh_{name}{suffix}"] = path
+    files = export_files(exports, mesh_suffixes)
+    for exported in exports.meshes:
+        for name in files[exported.name]:
+            paths[name] = directory / name
+            save_mesh(exported.mesh, paths[name])
+    paths["mesh_export"] = directory / MESH_EXPORT_FILE
+    text = yaml.safe_dump(export_record(exports, files), sort_keys=False)
+    paths["mesh_export"].write_text(text)
     return paths

@@ -13,6 +13,7 @@ from planners.planner import PlannerConfig
 from reconstruction.camera_model import StereoDesign
 from reconstruction.checks import check_fields, integer, non_negative, positive
 from reconstruction.errors import ScannerError
+from reconstruction.mesh_export import MeshExportConfig
 from reconstruction.pipeline import ReconstructionConfig
 from reconstruction.stereo.params import StereoParams
 from reconstruction.surfaces import MESH_SUFFIXES
@@ -48,6 +49,8 @@ class ProcessingConfig:
     # The surface whose metrics are the report's headline keys.
     primary_surface: str = "poisson"
     mesh_formats: tuple[str, ...] = (".ply",)
+    # Unit, frame and decimation of the mesh files (--units, --frame, --decimate).
+    mesh_export: MeshExportConfig = field(default_factory=MeshExportConfig)
     # Surface samples for the metrics (area-uniform on the truth and on each result).
     metric_samples: int = integer(200_000, minimum=1000)
 

@@ -26,8 +26,9 @@ import yaml
 from reconstruction.camera_model import StereoCamera
 from reconstruction.coverage import coverage_estimate
 from reconstruction.errors import ScannerError
+from reconstruction.mesh_export import export_record, prepare_exports
 from reconstruction.mesh_topology import mesh_quality
-from reconstruction.outputs import save_outputs, summary
+from reconstruction.outputs import export_files, save_outputs, summary
 from reconstruction.pipeline import ReconstructionResult, reconstruct_views
 from reconstruction.stage_timer import StageTimer
 from scanner.captures import atomic_write_text
@@ -66,7 +67,8 @@ def _write_results(result, processing: ProcessingConfig, truth, out: Path) -> di
     """Meshes, the fused cloud, reconstruction.yaml and the plots; their report keys."""
     from scanner.report import write_plots
 
-    paths = save_outputs(result, out, processing.mesh_formats)
+    exports = prepare_exports(result.meshes, processing.mesh_export, processing.primary_surface)
+    paths = save_outputs(result, out, processing.mesh_formats, exports)
     details = summary(result)
     atomic_write_text(
         out / "reconstruction.yaml",
@@ -93,6 +95,7 @@ def _write_results(result, processing: ProcessingConfig, truth, out: Path) -> di
         "X_FC_change_mm": 1e3 * details["X_FC_change_translation_m"],
         "X_FC_change_deg": math.degrees(details["X_FC_change_rotation_rad"]),
         "outputs": {k: str(p.relative_to(out)) for k, p in paths.items()},
+        "mesh_export": export_record(exports, export_files(exports, processing.mesh_formats)),
         "plots": write_plots(result, out, truth[1] if truth else None, processing.primary_surface),
     }
 

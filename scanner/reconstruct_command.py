@@ -21,6 +21,9 @@ class ReconstructOptions:
     out: Path | None = None
     force: bool = False
     progress: bool = False
+    units: str | None = None  # --units, --frame, --decimate: processing.mesh_export
+    frame: str | None = None
+    decimate: int | None = None
 
 
 def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructRun:
@@ -49,7 +52,12 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
     formats = processing.mesh_formats
     if options.formats:
         formats = tuple("." + f.strip().lstrip(".").lower() for f in options.formats.split(","))
-    processing = replace(processing, reconstruction=rec, mesh_formats=formats)
+    processing = replace(
+        processing,
+        reconstruction=rec,
+        mesh_formats=formats,
+        mesh_export=_mesh_export(processing.mesh_export, options),
+    )
     stereo = X_FC = None
     if options.calibration is not None:
         calibration = load_calibration(options.calibration)
@@ -58,6 +66,21 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
     if options.out is not None:
         require_replaceable(options.out, RECONSTRUCTION_MARKER, options.force, "reconstruction")
     return run_reconstruct(scan, processing, out, X_FC, stereo, progress=options.progress)
+
+
+def _mesh_export(export, options: ReconstructOptions):
+    """processing.mesh_export with --units, --frame and --decimate applied (an error names the
+    flag)."""
+    from scanner.arguments import for_flag
+
+    for flag, key, value in (
+        ("--units", "units", options.units),
+        ("--frame", "frame", options.frame),
+        ("--decimate", "decimate_triangles", options.decimate),
+    ):
+        if value is not None:
+            export = for_flag(flag, lambda: replace(export, **{key: value}))  # noqa: B023
+    return export
 
 
 def summary_lines(report: dict) -> list[str]:
