@@ -65,9 +65,7 @@ class ConfigDefault:
         return self.show(self.value())
 
 
-def add_config_option(
-    parser, *flags: str, config: ConfigDefault, **options
-) -> argparse.Action:
+def add_config_option(parser, *flags: str, config: ConfigDefault, **options) -> argparse.Action:
     """An option whose default comes from the configuration: its help writes that default as
     `%(config_default)s` (argparse expands help with the action's attributes)."""
     action = parser.add_argument(*flags, **options)

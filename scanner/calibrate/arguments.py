@@ -102,8 +102,7 @@ def _add_board_arguments(calibrate: argparse.ArgumentParser) -> None:
         "--board-spacing",
         type=positive_float,
         metavar="M",
-        help="square size, or circle distance along a row, in metres "
-        "(default %(config_default)s)",
+        help="square size, or circle distance along a row, in metres (default %(config_default)s)",
         config=ConfigDefault(CALIBRATE_CONFIG, "board.spacing_m"),
     )
     add_config_option(
@@ -183,8 +182,7 @@ def _add_offline_arguments(calibrate: argparse.ArgumentParser) -> None:
     offline.add_argument(
         "--pose-file",
         type=path_arg,
-        help="one pose per line, in image name order (default: none, a NAME.txt beside each "
-        "image)",
+        help="one pose per line, in image name order (default: none, a NAME.txt beside each image)",
     )
     offline.add_argument(
         "--intrinsics",
