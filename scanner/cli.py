@@ -218,6 +218,42 @@ def _add_reconstruct_parser(sub) -> None:
         "or what the scan's or --config's processing.mesh_formats says)",
         config=ConfigDefault("scanner.config:ProcessingConfig", "mesh_formats", show_formats),
     )
+    export = "scanner.config:ProcessingConfig"
+    add_config_option(
+        reconstruct,
+        "--units",
+        type=name_arg,
+        metavar="{m,mm}",
+        help="unit of the mesh files' coordinates; not metres: the file names end in _mm "
+        "(default: the settings' processing.mesh_export.units, %(config_default)s unless "
+        "configured)",
+        config=ConfigDefault(export, "mesh_export.units"),
+    )
+    add_config_option(
+        reconstruct,
+        "--frame",
+        type=name_arg,
+        metavar="{world,object}",
+        help="frame of the mesh files: the robot's world, or object (centred on the surface, "
+        "along its principal axes; file names end in _object); mesh_export.yaml gives X_WO "
+        "(default: the settings' processing.mesh_export.frame, %(config_default)s unless "
+        "configured)",
+        config=ConfigDefault(export, "mesh_export.frame"),
+    )
+    add_config_option(
+        reconstruct,
+        "--decimate",
+        type=int,
+        metavar="N",
+        help="at most N triangles per mesh file (quadric decimation; the Hausdorff distance to "
+        "the full mesh is reported) (default: the settings' "
+        "processing.mesh_export.decimate_triangles, %(config_default)s unless configured)",
+        config=ConfigDefault(export, "mesh_export.decimate_triangles", _no_decimation),
+    )
+
+
+def _no_decimation(value) -> str:
+    return "no decimation" if value is None else str(value)
 
 
 def _add_merge_parser(sub) -> None:
@@ -346,6 +382,9 @@ def _reconstruct(args: argparse.Namespace) -> int:
         args.out,
         args.force,
         progress=len(dirs) == 1 and args.ray_address is None,
+        units=args.units,
+        frame=args.frame,
+        decimate=args.decimate,
     )
     if len(dirs) > 1 or args.ray_address is not None or args.workers is not None:
         return _reconstruct_batch(dirs, options, args)
