@@ -135,7 +135,8 @@ def _add_offline_arguments(calibrate: argparse.ArgumentParser) -> None:
         type=path_arg,
         metavar="DIR",
         help="a calibration directory made by this tool, or images with robot pose files "
-        "(same name, .txt) or left/ and right/ image folders (default: none, move the robot "
+        "(same name, .txt) or left/ and right/ image folders; with --eye-to-hand, the folder "
+        "an --eye-to-hand run recorded, solved again (default: none, move the robot "
         "in the simulator or with --driver)",
     )
     offline.add_argument(

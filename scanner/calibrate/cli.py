@@ -14,7 +14,7 @@ from reconstruction.errors import ScannerError
 from scanner.arguments import for_flag
 from scanner.calibrate.config import CalibrateConfig, load_calibrate_config
 from scanner.calibrate.eye_in_hand import run_eye_in_hand
-from scanner.calibrate.eye_to_hand import run_eye_to_hand
+from scanner.calibrate.eye_to_hand import run_eye_to_hand, solve_eye_to_hand_directory
 from scanner.calibrate.offline import (
     OfflineOptions,
     calibrate_cameras_directory,
@@ -165,6 +165,16 @@ def _print_summary(report: dict, results_dir: Path, calibration_file: Path) -> N
     print(f"report: {results_dir / 'report.txt'}")
 
 
+def _print_eye_to_hand(report: dict, results: Path) -> None:
+    h = report["held_out"]
+    print(
+        f"eye-to-hand: {report['fit_points_used']} grid points used, "
+        f"{report['fit_points_rejected']} rejected; held-out error over {h['count']} points: "
+        f"mean {h['mean_distance_mm']:.3f} mm, std {h['std_distance_mm']:.3f} mm"
+    )
+    print(f"report: {results / 'eye_to_hand_report.txt'}")
+
+
 OFFLINE_ONLY = (
     "pose_convention",
     "pose_layout",
@@ -198,20 +208,23 @@ def run_calibrate_command(args: argparse.Namespace) -> int:
     config = _config(args)
     if args.resume is not None and (args.eye_to_hand or args.offline is not None):
         raise ScannerError("--resume continues an eye-in-hand run, not --eye-to-hand/--offline")
+    if args.eye_to_hand and args.offline is not None:
+        pose_flags = [n for n in OFFLINE_ONLY if getattr(args, n) not in (None, False)]
+        if pose_flags:
+            raise ScannerError(
+                f"--{pose_flags[0].replace('_', '-')}: --eye-to-hand --offline reads the poses "
+                "its run recorded (metres); give no pose options"
+            )
+        report, results = solve_eye_to_hand_directory(args.offline, config, args.out, args.force)
+        _print_eye_to_hand(report, results)
+        return 0
     if args.eye_to_hand:
-        if args.offline is not None:
-            raise ScannerError("--eye-to-hand runs in the simulator; do not give --offline")
         out = args.out or Path("calibrations") / f"eye-to-hand-{_stamp()}"
         require_replaceable(out / "results", "eye_to_hand.yaml", args.force, "calibration")
         with ProgressBar("points") as bar:
             report = run_eye_to_hand(config, out, progress=bar.update)
-        h = report["held_out"]
-        print(
-            f"eye-to-hand: {report['fit_points_used']} grid points used, "
-            f"{report['fit_points_rejected']} rejected; held-out error over {h['count']} points: "
-            f"mean {h['mean_distance_mm']:.3f} mm, std {h['std_distance_mm']:.3f} mm"
-        )
-        print(f"report: {out / 'results' / 'eye_to_hand_report.txt'}")
+        _print_eye_to_hand(report, out / "results")
+        print(f"recorded frames and poses: {out} (solve again: --eye-to-hand --offline {out})")
         return 0
     if args.offline is not None:
         root = args.offline

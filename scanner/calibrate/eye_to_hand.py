@@ -4,6 +4,7 @@ the flange driven over a 3D grid, a rigid fit with outlier rejection and held-ou
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -14,24 +15,32 @@ import yaml
 
 from planners.ik import ik_flange, look_at_rotation
 from reconstruction.calibration.eye_to_hand import (
+    MarkerDetectionSettings,
     detect_blinking_marker,
     fit_rigid_robust,
     grid_points,
     held_out_errors,
     triangulate,
 )
-from reconstruction.camera_model import (
-    stereo_camera_to_dict,
-)
+from reconstruction.camera_model import StereoCamera, stereo_camera_to_dict
 from reconstruction.errors import ScannerError
 from reconstruction.transforms import make_pose, pose_difference, transform_points
 from robots.blinking_marker import BlinkingMarker
 from robots.simulation import cache_dir
 from robots.static_camera import StaticStereoCamera
-from scanner.calibrate.config import CalibrateConfig
+from scanner.calibrate.config import CalibrateConfig, EyeToHandConfig
 from scanner.calibrate.eye_in_hand import MoveFn, PlannedMover, build_world
+from scanner.calibrate.eye_to_hand_store import (
+    POINTS,
+    MarkerRecord,
+    read_manifest,
+    read_points,
+    window,
+    write_manifest,
+    write_point,
+)
 from scanner.captures import atomic_write_text
-from scanner.results_folder import staged_folder
+from scanner.results_folder import free_results_dir, require_replaceable, staged_folder
 from scanner.units import deg, mm
 
 
@@ -81,34 +90,66 @@ class _MarkerSession:
         q = min(qs, key=lambda q: float(np.abs(q - q_now).max()))
         return "" if self.move_to(q) else "no collision-free path"
 
-    def _measure_here(self) -> MarkerMeasurement | None:
+    def _record_here(self, index: int, kind: str) -> MarkerRecord | None:
+        """The frames of both cameras cut to a window around the marker, with the reported
+        X_WF; None when either camera does not see the marker."""
         lefts, rights = self.camera.blink_frames(self.settings.frames)
         a = detect_blinking_marker(lefts, self.settings.detection)
         b = detect_blinking_marker(rights, self.settings.detection)
         if a is None or b is None:
             return None
-        p_S = triangulate(self.stereo_S, np.array([[a.u, a.v]]), np.array([[b.u, b.v]]))[0]
+        left, left_origin = window(lefts, a.u, a.v)
+        right, right_origin = window(rights, b.u, b.v)
         X_WF = self.world.kinematics.X_WF(self.world.sim.robot.joint_positions())
-        return MarkerMeasurement(transform_points(X_WF, self.p_FM[None])[0], p_S)
+        return MarkerRecord(index, kind, X_WF, left, right, left_origin, right_origin)
 
     def measure(
-        self, points: np.ndarray, wanted: int, progress: Callable[[int, int], None] | None
-    ) -> tuple[list[MarkerMeasurement], list[dict]]:
-        """Measure points in turn until `wanted` are measured or the points run out."""
+        self,
+        points: np.ndarray,
+        wanted: int,
+        progress: Callable[[int, int], None] | None,
+        kind: str,
+        root: Path,
+        first_index: int,
+    ) -> tuple[list[MarkerRecord], list[dict]]:
+        """Record points in turn (each written to `root`) until `wanted` are measured in both
+        cameras or the points run out."""
         done, skipped = [], []
         for p_WM in points:
             if len(done) >= wanted:
                 break
             where = [round(float(v), 4) for v in p_WM]
             why = self._reach(p_WM)
-            measurement = None if why else self._measure_here()
-            if measurement is None:
+            record = None if why else self._record_here(first_index + len(done), kind)
+            measured = (
+                None
+                if record is None
+                else measure_record(record, self.stereo_S, self.p_FM, self.settings.detection)
+            )
+            if measured is None:
                 skipped.append({"p_WM": where, "reason": why or "marker not seen by both cameras"})
                 continue
-            done.append(measurement)
+            write_point(root, record)
+            done.append(record)
             if progress:
                 progress(len(done), wanted)
         return done, skipped
+
+
+def measure_record(
+    record: MarkerRecord, stereo: StereoCamera, p_FM: np.ndarray, detection: MarkerDetectionSettings
+) -> MarkerMeasurement | None:
+    """The marker detected in the recorded windows, triangulated in S, and where the robot
+    reported it in W; None when either window does not show it."""
+    a = detect_blinking_marker(list(record.left), detection)
+    b = detect_blinking_marker(list(record.right), detection)
+    if a is None or b is None:
+        return None
+    (xl, yl), (xr, yr) = record.left_origin_px, record.right_origin_px
+    uv_left = np.array([[a.u + xl, a.v + yl]])
+    uv_right = np.array([[b.u + xr, b.v + yr]])
+    p_S = triangulate(stereo, uv_left, uv_right)[0]
+    return MarkerMeasurement(transform_points(record.X_WF, p_FM[None])[0], p_S)
 
 
 def run_eye_to_hand(
@@ -125,39 +166,125 @@ def run_eye_to_hand(
         )
     t0 = time.perf_counter()
     e2h = config.eye_to_hand
+    root = Path(out_dir)
     session = _MarkerSession(config, move_to)
+    X_WS_true = e2h.camera.X_WS
+    # A replaced run's points must not mix with this run's.
+    shutil.rmtree(root / POINTS, ignore_errors=True)
+    write_manifest(root, session.stereo_S, session.p_FM, e2h.frames, None)
     grid = grid_points(e2h.grid_center_m, e2h.grid_size_m, e2h.grid_spacing_m)
-    fit_points, fit_skipped = session.measure(grid, len(grid), progress)
+    fit_points, fit_skipped = session.measure(grid, len(grid), progress, "grid", root, 0)
     if len(fit_points) < 4:
         raise ScannerError(
             f"eye-to-hand: only {len(fit_points)} of {len(grid)} grid points were measured; "
             "need at least 4 not on one line (move the grid where the arm reaches and the "
             "static camera sees the marker)"
         )
-    fit = fit_rigid_robust(
-        np.array([m.p_W for m in fit_points]),
-        np.array([m.p_S for m in fit_points]),
-        e2h.max_residual_m,
-    )
     rng = np.random.default_rng(e2h.seed)
     half = np.array(e2h.grid_size_m) / 2
     # Random points in the grid's box until `held_out` are measured (unreachable ones are
     # skipped and reported; at most three draws per wanted point).
     test = np.array(e2h.grid_center_m) + rng.uniform(-half, half, (3 * e2h.held_out, 3))
-    test_points, test_skipped = session.measure(test, e2h.held_out, progress)
+    test_points, test_skipped = session.measure(
+        test, e2h.held_out, progress, "held_out", root, len(fit_points)
+    )
+    write_manifest(
+        root,
+        session.stereo_S,
+        session.p_FM,
+        e2h.frames,
+        {
+            "X_WS": X_WS_true.tolist(),
+            "grid_points": len(grid),
+            "skipped_grid": fit_skipped,
+            "skipped_held_out": test_skipped,
+        },
+    )
+    report, X_WS = solve_recorded(
+        [*fit_points, *test_points],
+        session.stereo_S,
+        session.p_FM,
+        e2h,
+        len(grid),
+        fit_skipped,
+        test_skipped,
+        X_WS_true,
+    )
+    report["eye_to_hand_s"] = time.perf_counter() - t0
+    _write_results(root / "results", report, X_WS, session.stereo_S, session.p_FM)
+    return report
+
+
+def solve_recorded(
+    records: list[MarkerRecord],
+    stereo: StereoCamera,
+    p_FM: np.ndarray,
+    e2h: EyeToHandConfig,
+    grid_count: int,
+    fit_skipped: list[dict],
+    test_skipped: list[dict],
+    X_WS_true: np.ndarray | None,
+) -> tuple[dict, np.ndarray]:
+    """X_WS from the recorded grid points, evaluated on the held-out ones: the report and X_WS."""
+    measured = {"grid": [], "held_out": []}
+    for r in records:
+        m = measure_record(r, stereo, p_FM, e2h.detection)
+        if m is None:
+            skipped = fit_skipped if r.kind == "grid" else test_skipped
+            skipped.append({"point": r.index, "reason": "marker not found in the recorded frames"})
+        else:
+            measured[r.kind].append(m)
+    fit_points, test_points = measured["grid"], measured["held_out"]
+    if len(fit_points) < 4:
+        raise ScannerError(
+            f"eye-to-hand: only {len(fit_points)} grid points have the marker in both cameras; "
+            "need at least 4 not on one line"
+        )
+    fit = fit_rigid_robust(
+        np.array([m.p_W for m in fit_points]),
+        np.array([m.p_S for m in fit_points]),
+        e2h.max_residual_m,
+    )
     errors = held_out_errors(
         np.array([m.p_W for m in test_points]),
         transform_points(fit.X_AB, np.array([m.p_S for m in test_points])),
     )
-    report = _report(fit, len(grid), fit_skipped, test_skipped, errors, e2h.camera.X_WS)
-    report["eye_to_hand_s"] = time.perf_counter() - t0
-    _write_results(Path(out_dir) / "results", report, fit.X_AB, session)
-    return report
+    report = _report(fit, grid_count, fit_skipped, test_skipped, errors, X_WS_true)
+    return report, fit.X_AB
+
+
+def solve_eye_to_hand_directory(
+    root: Path, config: CalibrateConfig, out_dir: Path | None = None, force: bool = False
+) -> tuple[dict, Path]:
+    """`--eye-to-hand --offline DIR`: solve again from what a run recorded in DIR. Results go
+    to out_dir/results, or to the first free DIR/results, DIR/results-2, ..."""
+    root = Path(root)
+    manifest, stereo, p_FM = read_manifest(root)
+    records = read_points(root, int(manifest["frames"]))
+    truth = manifest.get("truth") or {}
+    if out_dir is None:
+        results = free_results_dir(root, "eye_to_hand.yaml")
+    else:
+        results = Path(out_dir) / "results"
+        require_replaceable(results, "eye_to_hand.yaml", force, "calibration")
+    X_WS_true = np.array(truth["X_WS"], float) if "X_WS" in truth else None
+    report, X_WS = solve_recorded(
+        records,
+        stereo,
+        p_FM,
+        config.eye_to_hand,
+        int(truth.get("grid_points", sum(r.kind == "grid" for r in records))),
+        list(truth.get("skipped_grid", [])),
+        list(truth.get("skipped_held_out", [])),
+        X_WS_true,
+    )
+    report["source"] = f"offline:{root}"
+    _write_results(results, report, X_WS, stereo, p_FM)
+    return report, results
 
 
 def _report(fit, grid_points_count, fit_skipped, test_skipped, errors, X_WS_true) -> dict:
-    dt, dr = pose_difference(fit.X_AB, X_WS_true)
-    return {
+    report = {
         "X_WS": fit.X_AB.tolist(),
         "grid_points": grid_points_count,
         "fit_points_used": int(len(fit.inliers)),
@@ -173,24 +300,31 @@ def _report(fit, grid_points_count, fit_skipped, test_skipped, errors, X_WS_true
             "std_distance_mm": mm(errors.std_distance_m),
             "max_distance_mm": mm(errors.max_distance_m),
         },
-        "truth": {"X_WS_error_mm": mm(dt), "X_WS_error_deg": deg(dr)},
     }
+    if X_WS_true is not None:
+        dt, dr = pose_difference(fit.X_AB, X_WS_true)
+        report["truth"] = {"X_WS_error_mm": mm(dt), "X_WS_error_deg": deg(dr)}
+    return report
 
 
-def _write_results(final: Path, report: dict, X_WS: np.ndarray, session: _MarkerSession) -> None:
+def _write_results(
+    final: Path, report: dict, X_WS: np.ndarray, stereo: StereoCamera, p_FM: np.ndarray
+) -> None:
     with staged_folder(final) as results:
-        _write_files(results, report, X_WS, session)
+        _write_files(results, report, X_WS, stereo, p_FM)
 
 
-def _write_files(results: Path, report: dict, X_WS: np.ndarray, session: _MarkerSession) -> None:
+def _write_files(
+    results: Path, report: dict, X_WS: np.ndarray, stereo: StereoCamera, p_FM: np.ndarray
+) -> None:
     atomic_write_text(
         results / "eye_to_hand.yaml",
         yaml.safe_dump(
             {
                 "schema": "scanner.eye_to_hand/1",
                 "X_WS": X_WS.tolist(),
-                "static_camera": stereo_camera_to_dict(session.stereo_S),
-                "marker_p_FM": session.p_FM.tolist(),
+                "static_camera": stereo_camera_to_dict(stereo),
+                "marker_p_FM": p_FM.tolist(),
             },
             sort_keys=False,
         ),
