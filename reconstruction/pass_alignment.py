@@ -93,7 +93,7 @@ class PassAlignment:
         return not self.failures
 
 
-def _prepared(points: np.ndarray, voxel: float):
+def prepared_features(points: np.ndarray, voxel: float):
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
@@ -105,7 +105,7 @@ def _prepared(points: np.ndarray, voxel: float):
     return down, features
 
 
-def _hypotheses(source, target, src_f, tgt_f, config: AlignmentConfig) -> list[np.ndarray]:
+def feature_hypotheses(source, target, src_f, tgt_f, config: AlignmentConfig) -> list[np.ndarray]:
     import open3d as o3d
 
     reg = o3d.pipelines.registration
@@ -141,7 +141,7 @@ def _hypotheses(source, target, src_f, tgt_f, config: AlignmentConfig) -> list[n
     return out
 
 
-def _grid_hypotheses(source, target, config: AlignmentConfig) -> list[np.ndarray]:
+def rotation_grid_hypotheses(source, target, config: AlignmentConfig) -> list[np.ndarray]:
     """Coarse point-to-plane ICP from the centroids under each rotation of the icosahedral
     group (no two rotations of a 3D object are more than ~45 deg from one of them: inside
     ICP's basin with wide gates); the best fits by overlap."""
@@ -158,7 +158,7 @@ def _grid_hypotheses(source, target, config: AlignmentConfig) -> list[np.ndarray
     for R in Rotation.create_group("I").as_matrix():
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R, c_tgt - R @ c_src
-        result = _icp_coarse_to_fine(src, tgt, T, (5 * voxel, 2.5 * voxel, 1.25 * voxel), 30)
+        result = icp_coarse_to_fine(src, tgt, T, (5 * voxel, 2.5 * voxel, 1.25 * voxel), 30)
         fits.append((result.fitness, np.asarray(result.transformation)))
     fits.sort(key=lambda f: -f[0])
     return [T for _, T in fits[: config.coarse_starts_kept]]
@@ -166,10 +166,10 @@ def _grid_hypotheses(source, target, config: AlignmentConfig) -> list[np.ndarray
 
 def _refine(source, target, T0: np.ndarray, config: AlignmentConfig) -> np.ndarray:
     gates_m = (3 * config.voxel_m, config.voxel_m, config.inlier_distance_m)
-    return np.asarray(_icp_coarse_to_fine(source, target, T0, gates_m, 50).transformation)
+    return np.asarray(icp_coarse_to_fine(source, target, T0, gates_m, 50).transformation)
 
 
-def _icp_coarse_to_fine(source, target, T0: np.ndarray, gates_m, max_iterations: int):
+def icp_coarse_to_fine(source, target, T0: np.ndarray, gates_m, max_iterations: int):
     """Point-to-plane ICP at each correspondence gate in turn, each from the previous fit;
     Open3D's result of the last (its transformation maps source points into the target)."""
     import open3d as o3d
@@ -263,16 +263,16 @@ def align_pass(
     with its verification. Without colours the texture check is left out."""
     from scipy.spatial import cKDTree
 
-    source, src_f = _prepared(points, config.voxel_m)
-    target, tgt_f = _prepared(reference, config.voxel_m)
+    source, src_f = prepared_features(points, config.voxel_m)
+    target, tgt_f = prepared_features(reference, config.voxel_m)
     tree = cKDTree(reference)
     textured = colors is not None and reference_colors is not None
     grey = np.asarray(colors, float).mean(axis=1) if textured else np.zeros(len(points))
     ref_grey = np.asarray(reference_colors, float).mean(axis=1) if textured else None
     sample = np.asarray(source.points)
     candidates = []
-    starts = _hypotheses(source, target, src_f, tgt_f, config)
-    for T0 in starts + _grid_hypotheses(source, target, config):
+    starts = feature_hypotheses(source, target, src_f, tgt_f, config)
+    for T0 in starts + rotation_grid_hypotheses(source, target, config):
         T = _refine(source, target, T0, config)
         fit = _fit(
             transform_points(T, points),

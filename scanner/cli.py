@@ -24,6 +24,7 @@ from scanner.arguments import (
 )
 from scanner.calibrate.arguments import add_calibrate_parser
 from scanner.exchange import add_export_parser, add_import_parser
+from scanner.inspect_command import add_inspect_parser
 
 BUILTIN_HELP = "vase, bracket, pebble"
 # Where scan's flags take their defaults from when neither they nor --config give a value.
@@ -47,6 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_preview_parser(sub)
     add_export_parser(sub)
     add_import_parser(sub)
+    add_inspect_parser(sub)
     return parser
 
 
@@ -476,6 +478,10 @@ def _run(args: argparse.Namespace) -> int:
         from scanner.exchange import run_export
 
         return run_export(args)
+    if args.command == "inspect":
+        from scanner.inspect_command import run_inspect_command
+
+        return run_inspect_command(args)
     if args.command == "import-calibration":
         from scanner.exchange import run_import
 

@@ -53,6 +53,10 @@ class ProcessingConfig:
     mesh_export: MeshExportConfig = field(default_factory=MeshExportConfig)
     # Surface samples for the metrics (area-uniform on the truth and on each result).
     metric_samples: int = integer(200_000, minimum=1000)
+    # Deviation pictures: the colour scale's end (+-), fixed so that runs compare by eye, and
+    # the tolerance band the statistics count within.
+    deviation_scale_m: float = positive(0.001)
+    deviation_tolerance_m: float = positive(0.0005)
 
     def __post_init__(self) -> None:
         bad = [f for f in self.mesh_formats if f not in MESH_SUFFIXES]

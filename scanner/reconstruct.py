@@ -65,7 +65,7 @@ def free_reconstruction_dir(scan_dir: Path) -> Path:
 
 def _write_results(result, processing: ProcessingConfig, truth, out: Path) -> dict:
     """Meshes, the fused cloud, reconstruction.yaml and the plots; their report keys."""
-    from scanner.report import write_plots
+    from scanner.report_plots import write_plots
 
     exports = prepare_exports(result.meshes, processing.mesh_export, processing.primary_surface)
     paths = save_outputs(result, out, processing.mesh_formats, exports)
@@ -89,6 +89,19 @@ def _write_results(result, processing: ProcessingConfig, truth, out: Path) -> di
                 "failures": d["failures"],
             },
         }
+    refinement = details.get("handeye", {}).get("refinement")
+    if refinement is not None:
+        converged["handeye_fit"] = {
+            "rms_before_mm": 1e3 * refinement["rms_before_m"],
+            "rms_after_mm": 1e3 * refinement["rms_after_m"],
+        }
+    plots, deviation = write_plots(
+        result,
+        out,
+        truth[1] if truth else None,
+        processing.deviation_scale_m,
+        processing.deviation_tolerance_m,
+    )
     return {
         **converged,
         "X_FC_estimate": result.X_FC.tolist(),
@@ -96,7 +109,31 @@ def _write_results(result, processing: ProcessingConfig, truth, out: Path) -> di
         "X_FC_change_deg": math.degrees(details["X_FC_change_rotation_rad"]),
         "outputs": {k: str(p.relative_to(out)) for k, p in paths.items()},
         "mesh_export": export_record(exports, export_files(exports, processing.mesh_formats)),
-        "plots": write_plots(result, out, truth[1] if truth else None, processing.primary_surface),
+        "plots": plots,
+        **({"deviation": deviation} if deviation else {}),
+    }
+
+
+def _settings(processing: ProcessingConfig, scan: SavedScan, origin: dict[str, str]) -> dict:
+    """The options behind a result, for its summary (`origin`: where X_FC and the processing
+    settings came from when the caller chose them)."""
+    rec = processing.reconstruction
+    calibration = scan.config.calibration_file
+    scan_X_FC = (
+        f"the scan's, from the calibration file {calibration}"
+        if calibration
+        else "the scan's nominal (design) X_FC, no calibration given"
+    )
+    return {
+        "icp": rec.icp.enabled,
+        "handeye_correction": rec.handeye.enabled,
+        "surfaces": list(rec.surfaces.methods),
+        "primary_surface": processing.primary_surface,
+        "mesh_formats": list(processing.mesh_formats),
+        "deviation_scale_mm": 1e3 * processing.deviation_scale_m,
+        "deviation_tolerance_mm": 1e3 * processing.deviation_tolerance_m,
+        "X_FC_given": origin.get("X_FC_given", scan_X_FC),
+        "processing_from": origin.get("processing_from", "the scan's own settings"),
     }
 
 
@@ -111,14 +148,16 @@ def run_reconstruct(
     stereo: StereoCamera | None = None,
     streamed: StreamedViews | None = None,
     progress: bool = False,
+    origin: dict[str, str] | None = None,
 ) -> ReconstructRun:
     """Reconstruct a saved scan (a directory, or one already opened). Defaults: the scan's own
     processing settings, camera model and X_FC (from its manifest); results in SCAN_DIR/results.
     `streamed`: per-view results computed while the scan ran (used where the settings match);
-    `progress`: show the stages on stderr (when it is a terminal)."""
+    `progress`: show the stages on stderr (when it is a terminal); `origin`: where the caller's
+    X_FC and processing came from, for the summary (`X_FC_given`, `processing_from`)."""
     scan = scan if isinstance(scan, SavedScan) else open_scan(scan)
     out = Path(results_dir) if results_dir else scan.store.results_dir
-    return reconstruct_scans([scan], out, processing, X_FC, stereo, streamed, progress)
+    return reconstruct_scans([scan], out, processing, X_FC, stereo, streamed, progress, origin)
 
 
 def reconstruct_scans(
@@ -129,6 +168,7 @@ def reconstruct_scans(
     stereo: StereoCamera | None = None,
     streamed: StreamedViews | None = None,
     progress: bool = False,
+    origin: dict[str, str] | None = None,
 ) -> ReconstructRun:
     """One model from the captures of one or more scans: every hanging of every scan,
     aligned into the first one's frame (refused, with nothing written, when an alignment does
@@ -137,7 +177,7 @@ def reconstruct_scans(
     processing = processing or scans[0].config.processing
     display = _stage_display(scans) if progress else None
     try:
-        return _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0)
+        return _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0, origin)
     finally:
         if display is not None:
             display.close()
@@ -149,7 +189,9 @@ def _stage_display(scans: list[SavedScan]):
     return StageProgress(sum(len(s.store.captured_indices()) for s in scans))
 
 
-def _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0) -> ReconstructRun:
+def _reconstruct(
+    scans, out, processing, X_FC, stereo, streamed, display, t0, origin
+) -> ReconstructRun:
     first = scans[0]
     config = with_roi_centre(processing.reconstruction, np.array(first.config.scan_center_m))
     on_stage = display.on_stage if display else None
@@ -172,7 +214,11 @@ def _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0) ->
             views.views, X_FC, config, views.remove, hangings, filtered, on_stage
         )
 
-    report: dict = {"captures_used": len(views.views), "captures_skipped": views.skipped}
+    report: dict = {
+        "captures_used": len(views.views),
+        "captures_skipped": views.skipped,
+        "settings": _settings(processing, first, origin or {}),
+    }
     with timer("coverage"):
         centres = [v.X_WC[:3, 3] for v in result.views]
         coverage = coverage_estimate(result.fused, centres)

@@ -65,7 +65,14 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
     out = options.out or free_reconstruction_dir(scan_dir)
     if options.out is not None:
         require_replaceable(options.out, RECONSTRUCTION_MARKER, options.force, "reconstruction")
-    return run_reconstruct(scan, processing, out, X_FC, stereo, progress=options.progress)
+    origin = {}
+    if options.config is not None:
+        origin["processing_from"] = f"--config {options.config}"
+    if options.calibration is not None:
+        origin["X_FC_given"] = f"from --calibration {options.calibration}"
+    return run_reconstruct(
+        scan, processing, out, X_FC, stereo, progress=options.progress, origin=origin
+    )
 
 
 def _mesh_export(export, options: ReconstructOptions):

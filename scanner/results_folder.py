@@ -20,12 +20,12 @@ def holds_result(folder: Path, marker: str) -> bool:
     return (Path(folder) / marker).is_file()
 
 
-def free_results_dir(root: Path, marker: str) -> Path:
-    """ROOT/results while it holds no result, else the first free ROOT/results-N."""
-    candidate, n = Path(root) / "results", 1
+def free_results_dir(root: Path, marker: str, name: str = "results") -> Path:
+    """ROOT/NAME while it holds no result, else the first free ROOT/NAME-N."""
+    candidate, n = Path(root) / name, 1
     while holds_result(candidate, marker):
         n += 1
-        candidate = Path(root) / f"results-{n}"
+        candidate = Path(root) / f"{name}-{n}"
     return candidate
 
 

@@ -56,6 +56,9 @@ def places(tmp_path_factory):
     ):
         (root / name).mkdir()
         write(stereo, root / name)
+    import open3d as o3d
+
+    o3d.io.write_triangle_mesh(str(root / "model.ply"), o3d.geometry.TriangleMesh.create_box())
     tf = exchange.static_transform(np.eye(4))
     (root / "he.yaml").write_text(exchange.static_transform_text(tf))
     return root
@@ -117,6 +120,7 @@ EXPORT = ["export", "{root}/calibration.yaml"]
 EXPORT_TF = [*EXPORT, "--format", "ros-tf", "--out", "{root}/exported"]
 IMPORT = ["import-calibration", "--format", "opencv", "{root}/opencv"]
 IMPORT_TO = [*IMPORT, "--out", "{root}/imported.yaml"]
+INSPECT = ["inspect", "{root}/model.ply", "--reference", "{root}/model.ply"]
 IMPORT_ROS_TO = ["import-calibration", "--format", "ros", "{root}/ros", "--out", "{root}/i.yaml"]
 
 # (command and the context it needs, option, bad values). Every option of every subcommand is
@@ -213,6 +217,15 @@ CASES = [
     (IMPORT_TO, "--force=1", None),
     (IMPORT_TO, "--hand-eye", _paths([*PATHS, "{root}/calibration.yaml"])),
     (IMPORT_TO, "--image-size", BAD_IMAGE_SIZES),
+    (["inspect", "--reference", "{root}/model.ply"], "", _paths(PATHS)),
+    (["inspect", "{root}/model.ply"], "--reference", _paths([*PATHS, "{root}/calibration.yaml"])),
+    (INSPECT, "--tolerance", _floats(None)),
+    (INSPECT, "--min-within", _floats(1.0)),
+    (INSPECT, "--scale", _floats(None)),
+    (INSPECT, "--reference-unit", _names(["auto", "m", "mm"])),
+    (INSPECT, "--align", _names(["best-fit", "none"])),
+    (INSPECT, "--out", _paths(OUT_PATHS)),
+    (INSPECT, "--force=1", None),
     (IMPORT_TO, "--image-size", st.just("640x480")),
     (IMPORT_ROS_TO, "--image-size", st.just("1280x960")),
     (IMPORT_TO, "--length-unit", BAD_LENGTH_UNITS),
@@ -227,10 +240,12 @@ def no_work(monkeypatch):
     import reconstruction.calibration.file
     import scanner.calibrate.eye_to_hand
     import scanner.calibrate.offline
+    import scanner.inspect
     import scanner.preview
     import scanner.scan_views
 
     monkeypatch.setattr(planners.planner.Planner, "__init__", _tripwire)
+    monkeypatch.setattr(scanner.inspect, "inspect_model", _tripwire)
     monkeypatch.setattr(scanner.scan_views, "capture_views", _tripwire)
     monkeypatch.setattr(scanner.calibrate.offline, "solve", _tripwire)
     monkeypatch.setattr(scanner.calibrate.eye_to_hand, "grid_points", _tripwire)

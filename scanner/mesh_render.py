@@ -1,0 +1,116 @@
+"""Headless pictures of a triangle mesh with Drake's VTK renderer (no display needed).
+
+A mesh can carry one scalar per vertex drawn through a colour map: the map becomes a one-row
+texture and each vertex's texture coordinate is its place on it, so colours blend along the
+map (not through RGB) across a triangle, and one value always gets the same colour.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+# Where the cameras are, seen from the mesh's centre: below at the side, as the robot sees a
+# hung object, and at the side.
+DEFAULT_DIRECTIONS = (np.array([-0.6, -0.8, -0.9]), np.array([-1.0, 0.3, 0.1]))
+PLAIN_COLOUR = (0.8, 0.75, 0.65)
+
+
+def _write_obj(folder: Path, vertices, triangles, u: np.ndarray | None, texture) -> Path:
+    import cv2
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(np.asarray(vertices, float)),
+        o3d.utility.Vector3iVector(np.asarray(triangles, np.int32)),
+    )
+    mesh.compute_vertex_normals()
+    obj = folder / "mesh.obj"
+    with obj.open("w") as f:
+        if u is not None:
+            f.write("mtllib mesh.mtl\nusemtl values\n")
+        np.savetxt(f, np.asarray(vertices, float), fmt="v %.7f %.7f %.7f")
+        np.savetxt(f, np.asarray(mesh.vertex_normals), fmt="vn %.5f %.5f %.5f")
+        t = np.asarray(triangles, np.int64) + 1
+        if u is None:
+            np.savetxt(f, np.repeat(t, 2, axis=1), fmt="f %d//%d %d//%d %d//%d")
+        else:
+            np.savetxt(f, np.c_[u, np.full(len(u), 0.5)], fmt="vt %.6f %.6f")
+            np.savetxt(f, np.repeat(t, 3, axis=1), fmt="f %d/%d/%d %d/%d/%d %d/%d/%d")
+    if u is not None:
+        strip = np.repeat(np.asarray(texture, np.uint8)[None], 4, axis=0)
+        cv2.imwrite(str(folder / "map.png"), cv2.cvtColor(strip, cv2.COLOR_RGB2BGR))
+        (folder / "mesh.mtl").write_text("newmtl values\nKa 1 1 1\nKd 1 1 1\nmap_Kd map.png\n")
+    return obj
+
+
+def render_mesh(
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    size_px: int = 480,
+    directions: Sequence[np.ndarray] = DEFAULT_DIRECTIONS,
+    values01: np.ndarray | None = None,
+    colour_map: np.ndarray | None = None,
+) -> list[np.ndarray]:
+    """One RGB image (size_px square) per camera direction (from the mesh's centre), the
+    whole mesh in view.
+    `values01`: per vertex, its place in [0, 1] on `colour_map` ((K, 3) uint8 RGB)."""
+    from pydrake.geometry import (
+        ClippingRange,
+        ColorRenderCamera,
+        GeometryInstance,
+        MakeRenderEngineVtk,
+        Mesh,
+        PerceptionProperties,
+        RenderCameraCore,
+        RenderEngineVtkParams,
+        Rgba,
+        SceneGraph,
+    )
+    from pydrake.math import RigidTransform, RotationMatrix
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.sensors import CameraInfo
+
+    from planners.ik import look_at_rotation
+
+    v = np.asarray(vertices, float)
+    # Texture lookups at exactly 0 or 1 blend with the strip's border.
+    u = None if values01 is None else np.clip(np.asarray(values01, float), 0.002, 0.998)
+    with tempfile.TemporaryDirectory() as tmp:
+        obj = _write_obj(Path(tmp), v, triangles, u, colour_map)
+        builder = DiagramBuilder()
+        sg = builder.AddSystem(SceneGraph())
+        sg.AddRenderer("vtk", MakeRenderEngineVtk(RenderEngineVtkParams()))
+        source = sg.RegisterSource("mesh_render")
+        instance = GeometryInstance(RigidTransform(), Mesh(str(obj)), "mesh")
+        perception = PerceptionProperties()
+        if u is None:
+            perception.AddProperty("phong", "diffuse", Rgba(*PLAIN_COLOUR, 1.0))
+        instance.set_perception_properties(perception)
+        sg.RegisterAnchoredGeometry(source, instance)
+        diagram = builder.Build()
+        context = diagram.CreateDefaultContext()
+        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(context))
+        centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+        radius = float(np.linalg.norm(v - centre, axis=1).max())
+        focal = 1.2 * size_px
+        # Far enough that the bounding sphere fits the narrower half-angle with a margin.
+        distance = 1.02 * radius * np.hypot(focal, size_px / 2) / (size_px / 2)
+        core = RenderCameraCore(
+            "vtk",
+            CameraInfo(size_px, size_px, focal, focal, size_px / 2, size_px / 2),
+            ClippingRange(max(1e-3, distance - 2 * radius), distance + 2 * radius),
+            RigidTransform(),
+        )
+        images = []
+        for d in directions:
+            p = centre + distance * np.asarray(d, float) / np.linalg.norm(d)
+            X_WV = RigidTransform(RotationMatrix(look_at_rotation(p, centre)), p)
+            image = query.RenderColorImage(
+                ColorRenderCamera(core, False), sg.world_frame_id(), X_WV
+            )
+            images.append(np.array(image.data)[..., :3].copy())
+    return images
