@@ -352,21 +352,35 @@ def _scan(args: argparse.Namespace) -> int:
         result = run_scan(
             config, out, args.resume, args.force, bar.update, args.meshcat, show_stages=True
         )
+    for line in scan_result_lines(result):
+        print(line)
     r = result.report
-    print(
-        f"scan: {r['views_captured']}/{r['views_planned']} views captured, "
-        f"{r['views_skipped']} skipped; robot motion {r['robot_motion_s']:.1f} s, "
-        f"wall {r['wall_s']:.1f} s; status {r['status']}"
-    )
-    _warn_handeye(r)
-    print(f"scan directory: {result.scan_dir}")
-    print(f"report: {result.scan_dir / 'results' / 'report.json'}")
-    if (result.scan_dir / "results" / "summary.md").is_file():
-        print(f"summary: {result.scan_dir / 'results' / 'summary.md'}")
     if r["status"] == "interrupted":
         print(f"continue with: scanner scan --resume {result.scan_dir}")
         return 130
     return 0
+
+
+def scan_result_lines(result) -> list[str]:
+    """What `scanner scan` prints at the end: the run, the headline figures with their verdicts
+    (with truth), a hand-eye warning if any, and where the results and their summary are."""
+    from scanner.reconstruct_command import metrics_line
+    from scanner.report import handeye_warning
+
+    r = result.report
+    results = result.scan_dir / "results"
+    lines = [
+        f"scan: {r['views_captured']}/{r['views_planned']} views captured, "
+        f"{r['views_skipped']} skipped; robot motion {r['robot_motion_s']:.1f} s, "
+        f"wall {r['wall_s']:.1f} s; status {r['status']}",
+        metrics_line(r),
+        handeye_warning(r),
+        f"scan directory: {result.scan_dir}",
+        f"report: {results / 'report.json'}",
+    ]
+    if (results / "summary.md").is_file():
+        lines.append(f"summary: {results / 'summary.md'}")
+    return [line for line in lines if line]
 
 
 def _reconstruct(args: argparse.Namespace) -> int:

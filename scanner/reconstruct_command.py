@@ -91,16 +91,42 @@ def _mesh_export(export, options: ReconstructOptions):
 
 
 def summary_lines(report: dict) -> list[str]:
-    """What the command prints about one finished reconstruction."""
+    """What the command prints about one finished reconstruction: the run, then (with truth)
+    the headline figures with their verdicts."""
     r = report
     lines = [
         f"reconstruct: {r['captures_used']} captures used, {len(r['captures_skipped'])} "
         f"skipped, {r['reconstruct_s']:.1f} s"
     ]
-    if "chamfer_mm" in r:
-        lines.append(
-            f"{r['primary_surface']}: chamfer {r['chamfer_mm']:.3f} mm, F-score(1 mm) "
-            f"{r['fscore_1mm']:.3f}, completeness(2 mm) {r['completeness_2mm']:.3f}; "
-            f"hand-eye error {r['handeye_error_mm']:.3f} mm / {r['handeye_error_deg']:.4f} deg"
-        )
+    line = metrics_line(r)
+    if line:
+        lines.append(line)
     return lines
+
+
+def metrics_line(report: dict) -> str | None:
+    """The headline figures against the truth, each with its verdict (None without truth)."""
+    from scanner.judgement import FIGURES
+
+    r = report
+    if "chamfer_mm" not in r:
+        return None
+
+    def judged(key: str, text: str) -> str:
+        return f"{text} ({FIGURES[key].verdict(r[key])})"
+
+    parts = []
+    if "chamfer_observed_mm" in r:
+        parts.append(
+            judged("chamfer_observed_mm", f"Chamfer {r['chamfer_observed_mm']:.3f} mm observed")
+        )
+        parts.append(judged("observed_fraction", f"{r['observed_fraction']:.0%} of it seen"))
+    parts.append(f"whole object {r['chamfer_mm']:.3f} mm, F-score(1 mm) {r['fscore_1mm']:.3f}")
+    if "handeye_error_mm" in r:
+        parts.append(
+            judged(
+                "handeye_error_mm",
+                f"hand-eye error {r['handeye_error_mm']:.3f} mm / {r['handeye_error_deg']:.4f} deg",
+            )
+        )
+    return f"{r['primary_surface']}: " + "; ".join(parts)

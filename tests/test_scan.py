@@ -51,6 +51,19 @@ def test_tiny_scan_captures_every_view(tiny_scan):
     assert (tiny_scan.scan_dir / "truth_mesh.ply").is_file()
 
 
+def test_the_scan_prints_its_figures_with_verdicts_and_where_the_summary_is(tiny_scan):
+    from scanner.cli import scan_result_lines
+    from scanner.judgement import FIGURES
+
+    lines = scan_result_lines(tiny_scan)
+    r = tiny_scan.report
+    summary = tiny_scan.scan_dir / "results" / "summary.md"
+    assert f"summary: {summary}" in lines and summary.is_file()
+    (figures,) = [line for line in lines if line.startswith("poisson: ")]
+    verdict = FIGURES["chamfer_observed_mm"].verdict(r["chamfer_observed_mm"])
+    assert f"Chamfer {r['chamfer_observed_mm']:.3f} mm observed ({verdict})" in figures
+
+
 def test_captures_record_the_pose_they_were_taken_at(tiny_scan):
     from robots.kinematics import Kinematics
 
