@@ -1,5 +1,5 @@
 """What each reported figure means and when it is good: one definition and one band per figure,
-used by every summary (scan, reconstruct, merge, inspect).
+used by every summary (scan, reconstruct, merge, inspect; calibration: scanner/calibrate/judge.py).
 
 Bands come from the physics of the default rig and from the benchmarks: at 0.5 m SGBM's depth
 quantisation is ~0.1 mm and the median depth error per view ~0.2 mm, so an observed-surface
@@ -9,6 +9,7 @@ and a hung object shows about 70 % of its surface to one hanging.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 
@@ -24,7 +25,9 @@ class Figure:
     poor: float
     higher_is_better: bool = False
 
-    def verdict(self, value: float) -> str:
+    def verdict(self, value: float | None) -> str:
+        if value is None or not math.isfinite(value):
+            return "unknown"
         if self.higher_is_better:
             return "good" if value >= self.good else "poor" if value < self.poor else "fair"
         return "good" if value <= self.good else "poor" if value > self.poor else "fair"
