@@ -18,7 +18,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from reconstruction.checks import check_fields, integer, non_negative, positive
+from reconstruction.checks import check_fields, integer, non_negative, positive, require_choice
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import (
     FilteredCloud,
@@ -34,6 +34,7 @@ from reconstruction.mesh_topology import (
     triangle_components,
 )
 from reconstruction.poisson_solver import solve_poisson_apart
+from reconstruction.surface_rbf import RBF_KERNELS, RbfParams, rbf_surface
 from reconstruction.transforms import invert, rotate_vectors, transform_points
 from reconstruction.views import DepthImage
 
@@ -69,6 +70,20 @@ class SurfaceConfig:
     # data cannot show a hole that small, so it is a meshing artefact (Poisson leaves such
     # loops where its trimming cuts a single triangle out), not a feature of the object.
     fill_holes_max_radius_m: float = non_negative(0.001)
+    # RBF implicit surface ("rbf", reconstruction/surface_rbf.py). Centres: the fused cloud
+    # thinned to 2 mm voxels (at most rbf_max_centres; the spacing grows beyond), each with
+    # points rbf_offset_m along and against its normal. 16 neighbouring centres per evaluation:
+    # as accurate as 32 on a noisy 0.05 m sphere (median 0.04 mm) in 1/3 of the time.
+    rbf_centre_spacing_m: float = positive(0.002)
+    rbf_max_centres: int = integer(20000, minimum=100)
+    rbf_offset_m: float = positive(0.001)
+    rbf_kernel: str = "thin_plate_spline"
+    rbf_neighbors: int = integer(16, minimum=4)
+    # scipy RBFInterpolator's smoothing, in units of the centre spacing: 0 interpolates the
+    # stereo noise.
+    rbf_smoothing: float = non_negative(1.0)
+    rbf_voxel_size_m: float = positive(0.0015)  # marching-cubes grid
+    rbf_max_distance_m: float = positive(0.002)  # triangles farther from the data are cut
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in SURFACE_METHODS]
@@ -78,6 +93,7 @@ class SurfaceConfig:
                 f"{', '.join(SURFACE_METHODS)}"
             )
         check_fields("surfaces", self)
+        require_choice("surfaces", "rbf_kernel", self.rbf_kernel, RBF_KERNELS)
         if not 0 <= self.poisson_density_quantile < 1 or not 0 <= self.min_component_fraction < 1:
             raise ScannerError(
                 "surfaces: poisson_density_quantile and min_component_fraction in [0, 1)"
@@ -249,6 +265,31 @@ def ball_pivoting_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMe
     return finish_mesh("ball_pivoting", mesh, config)
 
 
+def rbf_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
+    """The RBF implicit surface of the fused cloud where the data are, coloured by the
+    nearest fused point."""
+    fused = inputs.fused
+    params = RbfParams(
+        centre_spacing_m=config.rbf_centre_spacing_m,
+        max_centres=config.rbf_max_centres,
+        offset_m=config.rbf_offset_m,
+        kernel=config.rbf_kernel,
+        neighbors=config.rbf_neighbors,
+        smoothing=config.rbf_smoothing,
+        voxel_size_m=config.rbf_voxel_size_m,
+        max_distance_m=config.rbf_max_distance_m,
+    )
+    surface = rbf_surface(fused.points_W, fused.normals_W, params)
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(surface.vertices),
+        o3d.utility.Vector3iVector(surface.triangles.astype(np.int32)),
+    )
+    if len(surface.vertices):
+        _, nearest = cKDTree(fused.points_W).query(surface.vertices)
+        mesh.vertex_colors = o3d.utility.Vector3dVector(fused.colors[nearest] / 255.0)
+    return finish_mesh("rbf", canonical_order(mesh), config)
+
+
 def masked_depth(
     view: DepthView, roi: RegionOfInterest, remove_points: RemovePoints | None
 ) -> np.ndarray:
@@ -320,6 +361,7 @@ SURFACE_METHODS: dict[str, Callable[[SurfaceInput, SurfaceConfig], SurfaceMesh]]
     "poisson_closed": poisson_closed_mesh,
     "tsdf": tsdf_mesh,
     "ball_pivoting": ball_pivoting_mesh,
+    "rbf": rbf_mesh,
 }
 
 
