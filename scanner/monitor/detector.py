@@ -1,0 +1,349 @@
+"""Intrusion detection in the robot cell from a static stereo rig while the robot moves.
+
+Moving-object detection with a static camera: a per-pixel background model (OpenCV's MOG2) and
+three-frame differencing (a pixel moves when |I_t - I_t-1| and |I_t-1 - I_t-2| both exceed a
+threshold; it catches fast motion the background model is slow to flag). The robot's pixels,
+rendered from its geometry at the measured joints, and the hung object's are removed before
+anything is decided, and the background model never learns from them. What is left, cleaned by
+morphology, is a candidate if its connected component is large enough; it is an intrusion when
+the stereo pair puts it inside the monitored volume (a world-frame box), so a moving shadow on
+the far wall or a person walking behind the fence does not stop the scan.
+
+All image work runs on a downscaled left image (`downscale`); depth is matched at full
+resolution in the rectified pair, and only for candidates.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from reconstruction.checks import check_fields, fraction, integer, non_negative, positive
+from reconstruction.errors import ScannerError
+from reconstruction.stereo.rectification import rectify_pair
+from scanner.monitor.stereo_point import StereoRig, disparity_range, lift_rectified_W
+
+
+def _check_box(section: str, lo, hi) -> None:
+    for name, v in (("volume_min_m", lo), ("volume_max_m", hi)):
+        if not (
+            isinstance(v, tuple | list)
+            and len(v) == 3
+            and all(isinstance(c, int | float) and math.isfinite(c) for c in v)
+        ):
+            raise ScannerError(f"{section}.{name}: expected three finite numbers (m), got {v!r}")
+    if not all(a < b for a, b in zip(lo, hi, strict=True)):
+        raise ScannerError(
+            f"{section}.volume_max_m: expected every coordinate above volume_min_m "
+            f"{list(lo)}, got {list(hi)}"
+        )
+
+
+@dataclass(frozen=True)
+class MonitorConfig:
+    """Settings of the cell monitor. Pixel sizes are in full-resolution pixels of the left
+    image; grey levels are 8-bit. The monitored volume is an axis-aligned world box (m); the
+    default covers the RX60's table and the space above it up to the hung object's rod."""
+
+    fps: float = positive(15.0)
+    # Half resolution averages 4 pixels: sensor noise drops by 2 and the per-frame cost by 4,
+    # while a forearm at 2 m still covers hundreds of pixels.
+    downscale: int = integer(2, minimum=1, maximum=8)
+    min_area_px: float = positive(1200.0)
+    diff_threshold: float = positive(20.0)
+    # MOG2's squared Mahalanobis distance to call a pixel foreground (OpenCV's default is 16).
+    bg_var_threshold: float = positive(25.0)
+    bg_history_frames: int = integer(150, minimum=2)
+    # Frames before any decision: the background model needs a first estimate of every pixel.
+    warmup_frames: int = integer(30, minimum=3)
+    # Frames a pixel must have been seen unmasked before the background model judges it: a
+    # pixel the robot covered since start-up holds the robot's grey until MOG2 adopts the new
+    # mode, after about 0.1 * bg_history_frames frames (its background ratio is 0.9).
+    settle_frames: int = integer(20, minimum=0)
+    morph_kernel_px: int = integer(5, minimum=1)
+    mask_margin_px: int = integer(8, minimum=0)
+    volume_min_m: tuple[float, float, float] = (-0.5, -0.55, 0.02)
+    volume_max_m: tuple[float, float, float] = (0.8, 0.55, 1.6)
+    # Nearest depth searched by the stereo match (corners closer to the rig count as this).
+    min_depth_m: float = positive(0.3)
+    # RMS grey-level difference of a component's pixels between its left view and the best
+    # right match; above it the match (and so the depth) is not trusted.
+    match_rms_max: float = positive(20.0)
+    # Best match cost over the best cost 3 px or more away: near 1 means an ambiguous depth.
+    match_uniqueness: float = fraction(0.9)
+    min_inside_fraction: float = fraction(0.25)
+    max_candidates: int = integer(3, minimum=1)
+    clear_time_s: float = non_negative(1.0)
+
+    def __post_init__(self) -> None:
+        check_fields("monitor", self)
+        _check_box("monitor", self.volume_min_m, self.volume_max_m)
+
+    def inside(self, p_W: np.ndarray) -> np.ndarray:
+        """(N,) bool: which points (N, 3) lie in the monitored volume."""
+        p_W = np.atleast_2d(p_W)
+        return np.all((p_W >= self.volume_min_m) & (p_W <= self.volume_max_m), axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class Detection:
+    """What one frame says about the cell.
+
+    intrusion: a candidate confirmed inside the monitored volume by stereo.
+    area_px, centroid_px: of the reported component (the largest confirmed one, else the largest
+    candidate) in full-resolution left-image pixels; 0 and None without a candidate.
+    point_W: its 3D centroid (m) when stereo found its depth, else None.
+    candidates: components above min_area_px outside the robot/object masks.
+    cell_clear: no intrusion for clear_time_s and the background model warmed up: the scan may
+    (re)start.
+    """
+
+    t_s: float
+    intrusion: bool
+    area_px: int
+    centroid_px: tuple[float, float] | None
+    point_W: np.ndarray | None
+    depth_confirmed: bool
+    candidates: int
+    cell_clear: bool
+
+
+@dataclass(frozen=True, eq=False)
+class DepthCheck:
+    """The stereo verdict on one component: its world centroid (or None), the fraction of its
+    pixels inside the volume, the match's RMS grey difference and whether all checks passed."""
+
+    point_W: np.ndarray | None
+    inside_fraction: float
+    match_rms: float
+    confirmed: bool
+
+
+def _odd(n: float) -> int:
+    n = max(1, int(round(n)))
+    return n if n % 2 else n + 1
+
+
+def _ellipse(size: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+
+
+def depth_check(
+    rig: StereoRig,
+    config: MonitorConfig,
+    left_rect: np.ndarray,
+    right_rect: np.ndarray,
+    mask_rect: np.ndarray,
+    d_range: tuple[int, int],
+) -> DepthCheck:
+    """Match a component's pixels (mask_rect, uint8, rectified left grid) along their rows of
+    the rectified right image over disparities d_range = (d_lo, d_hi) px: one masked
+    sum-of-squared-differences per disparity. A rigid intruder at 1-2 m spans a few cm of depth,
+    below the matching's resolution, so one disparity per component is enough to place it."""
+    none = DepthCheck(None, 0.0, math.inf, False)
+    x, y, w, h = cv2.boundingRect(mask_rect)
+    n = int(np.count_nonzero(mask_rect[y : y + h, x : x + w]))
+    if n == 0:
+        return none
+    d_lo, d_hi = d_range
+    d_hi = min(d_hi, x)
+    if d_hi - d_lo < 4:
+        return none
+    patch = left_rect[y : y + h, x : x + w].astype(np.float32)
+    strip = right_rect[y : y + h, x - d_hi : x + w - d_lo].astype(np.float32)
+    weight = mask_rect[y : y + h, x : x + w].astype(np.float32) / 255.0
+    cost = cv2.matchTemplate(strip, patch, cv2.TM_SQDIFF, mask=weight)[0]
+    j = int(np.argmin(cost))
+    best = float(cost[j])
+    rms = math.sqrt(max(best, 0.0) / n)
+    far = np.abs(np.arange(len(cost)) - j) >= 3
+    # A minimum at either end of the search means the true disparity lies outside it.
+    at_edge = j == 0 or j == len(cost) - 1
+    distinct = best <= config.match_uniqueness * float(cost[far].min()) if far.any() else False
+    if at_edge or not distinct or rms > config.match_rms_max:
+        return DepthCheck(None, 0.0, rms, False)
+    # Sub-pixel minimum of the parabola through the best cost and its neighbours.
+    c0, c1, c2 = cost[j - 1], cost[j], cost[j + 1]
+    denom = c0 - 2 * c1 + c2
+    offset = 0.5 * (c0 - c2) / denom if denom > 0 else 0.0
+    d = d_hi - (j + offset)
+    v, u = np.nonzero(mask_rect[y : y + h, x : x + w])
+    step = max(1, len(u) // 400)
+    uvd = np.stack([u[::step] + x, v[::step] + y, np.full(len(u[::step]), d)], axis=1)
+    p_W = lift_rectified_W(rig, uvd.astype(np.float64))
+    inside = float(np.mean(config.inside(p_W)))
+    centroid_W = lift_rectified_W(rig, np.array([[u.mean() + x, v.mean() + y, d]]))[0]
+    return DepthCheck(centroid_W, inside, rms, inside >= config.min_inside_fraction)
+
+
+class IntrusionDetector:
+    """Feed every frame in time order; `update` says whether someone is in the cell.
+
+    The first `warmup_frames` frames only train the background model (no intrusion, and the cell
+    is not reported clear). The robot mask must be the left image's robot (and tool) pixels at
+    the frame's measured joints; `mask_margin_px` is added here.
+    """
+
+    def __init__(self, rig: StereoRig, config: MonitorConfig | None = None) -> None:
+        self.rig = rig
+        self.config = config or MonitorConfig()
+        c = self.config
+        s = c.downscale
+        w, h = rig.image_size
+        self._size_small = (w // s, h // s)
+        self._bg = cv2.createBackgroundSubtractorMOG2(
+            history=c.bg_history_frames, varThreshold=c.bg_var_threshold, detectShadows=False
+        )
+        self._margin_kernel = _ellipse(2 * math.ceil(c.mask_margin_px / s) + 1)
+        self._morph_kernel = _ellipse(_odd(c.morph_kernel_px / s))
+        d_min, d_max = disparity_range(rig, c.volume_min_m, c.volume_max_m, c.min_depth_m)
+        # Search a quarter beyond the volume's disparities on both sides, so that a component
+        # just outside the volume finds its true depth instead of a false minimum at the edge.
+        pad = 0.25 * (d_max - d_min) + 4
+        self._d_range = (max(0, math.floor(d_min - pad)), min(w - 1, math.ceil(d_max + pad)))
+        self._seen = None
+        self._seen_count = None
+        self._prev: list[tuple[np.ndarray, np.ndarray]] = []
+        self._frames = 0
+        self._last_intrusion_t = -math.inf
+        self._first_ready_t: float | None = None
+
+    @property
+    def ready(self) -> bool:
+        return self._frames >= self.config.warmup_frames
+
+    def _small(self, image: np.ndarray) -> np.ndarray:
+        if self.config.downscale == 1:
+            return image
+        return cv2.resize(image, self._size_small, interpolation=cv2.INTER_AREA)
+
+    def _small_mask(self, robot_mask, object_mask) -> np.ndarray:
+        """uint8 255 where the robot or object is (any of a block's pixels), plus the margin."""
+        m = np.asarray(robot_mask, bool)
+        if object_mask is not None:
+            m = m | np.asarray(object_mask, bool)
+        small = self._small(m.view(np.uint8) * np.uint8(255))
+        small = cv2.threshold(small, 0, 255, cv2.THRESH_BINARY)[1]
+        return cv2.dilate(small, self._margin_kernel)
+
+    def _check_inputs(self, left, right, robot_mask, object_mask) -> None:
+        w, h = self.rig.image_size
+        for name, a in (("left", left), ("right", right)):
+            if a.shape != (h, w) or a.dtype != np.uint8:
+                raise ScannerError(
+                    f"monitor: the {name} image must be {w}x{h} grey uint8 (the rig's model), "
+                    f"got shape {a.shape} {a.dtype}"
+                )
+        for name, m in (("robot_mask", robot_mask), ("object_mask", object_mask)):
+            if m is not None and np.shape(m) != (h, w):
+                raise ScannerError(f"monitor: {name} must be {h}x{w}, got {np.shape(m)}")
+
+    def update(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        robot_mask: np.ndarray,
+        t_s: float,
+        object_mask: np.ndarray | None = None,
+    ) -> Detection:
+        """One frame: grey uint8 left/right images (original, distorted), the robot mask (bool,
+        left image) at the frame's measured joints, the frame time (s) and optionally the hung
+        object's mask."""
+        self._check_inputs(left, right, robot_mask, object_mask)
+        c = self.config
+        small = self._small(left)
+        mask = self._small_mask(robot_mask, object_mask)
+        unmasked = mask == 0
+        if self._seen is None:
+            self._seen = small.copy()
+            self._seen_count = np.zeros(small.shape, np.uint16)
+        # The model only learns what it saw of the cell: under the robot it is fed the last
+        # grey seen there unmasked.
+        np.copyto(self._seen, small, where=unmasked)
+        fg_bg = self._bg.apply(self._seen)
+        count = self._seen_count
+        np.add(count, unmasked, out=count, where=count < 60000)
+        self._frames += 1
+
+        motion = None
+        if len(self._prev) == 2:
+            (p1, m1), (p2, m2) = self._prev
+            thr = c.diff_threshold
+            d1 = cv2.threshold(cv2.absdiff(small, p1), thr, 255, cv2.THRESH_BINARY)[1]
+            d2 = cv2.threshold(cv2.absdiff(p1, p2), thr, 255, cv2.THRESH_BINARY)[1]
+            robot_any = cv2.bitwise_or(cv2.bitwise_or(mask, m1), m2)
+            motion = cv2.bitwise_and(cv2.bitwise_and(d1, d2), cv2.bitwise_not(robot_any))
+        self._prev = [(small, mask)] + self._prev[:1]
+
+        if not self.ready:
+            return Detection(t_s, False, 0, None, None, False, 0, False)
+        if self._first_ready_t is None:
+            self._first_ready_t = t_s
+        settled = (count >= c.settle_frames) & unmasked
+        fg = np.where(settled, fg_bg, 0).astype(np.uint8)
+        if motion is not None:
+            fg = cv2.bitwise_or(fg, motion)
+        fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self._morph_kernel)
+        fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self._morph_kernel)
+        detection = self._decide(fg, fg_bg, settled, left, right, t_s)
+        if detection.intrusion:
+            self._last_intrusion_t = t_s
+        since = t_s - max(self._last_intrusion_t, self._first_ready_t)
+        clear = not detection.intrusion and since >= c.clear_time_s
+        return Detection(
+            t_s,
+            detection.intrusion,
+            detection.area_px,
+            detection.centroid_px,
+            detection.point_W,
+            detection.depth_confirmed,
+            detection.candidates,
+            clear,
+        )
+
+    def _decide(self, fg, fg_bg, settled, left, right, t_s) -> Detection:
+        c = self.config
+        s = c.downscale
+        n, labels, stats, centroids = cv2.connectedComponentsWithStats(fg, connectivity=8)
+        areas = stats[1:, cv2.CC_STAT_AREA] * s * s
+        big = [i + 1 for i in np.argsort(-areas) if areas[i] >= c.min_area_px]
+        if not big:
+            return Detection(t_s, False, 0, None, None, False, 0, False)
+        rect = self.rig.rect
+        left_rect, right_rect = rectify_pair(rect, left, right)
+        w, h = self.rig.image_size
+        reported = None
+        for i in big[: c.max_candidates]:
+            x, y, bw, bh = stats[i, :4]
+            component = labels[y : y + bh, x : x + bw] == i
+            # The current frame's own evidence (background model) places the depth patch on
+            # the intruder where it is now; differencing marks where it was a frame ago.
+            now = component & (fg_bg[y : y + bh, x : x + bw] > 0) & settled[y : y + bh, x : x + bw]
+            if np.count_nonzero(now) * s * s >= 0.25 * c.min_area_px:
+                component = now
+            full = np.zeros((h, w), np.uint8)
+            block = np.repeat(np.repeat(component.view(np.uint8) * np.uint8(255), s, 0), s, 1)
+            full[y * s : y * s + block.shape[0], x * s : x * s + block.shape[1]] = block
+            mask_rect = cv2.remap(full, *rect.maps_left, cv2.INTER_NEAREST)
+            check = depth_check(self.rig, c, left_rect, right_rect, mask_rect, self._d_range)
+            centroid = (
+                float((centroids[i, 0] + 0.5) * s - 0.5),
+                float((centroids[i, 1] + 0.5) * s - 0.5),
+            )
+            record = Detection(
+                t_s,
+                check.confirmed,
+                int(areas[i - 1]),
+                centroid,
+                check.point_W,
+                check.confirmed,
+                len(big),
+                False,
+            )
+            if check.confirmed:
+                return record
+            reported = reported or record
+        return reported
