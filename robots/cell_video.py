@@ -1,0 +1,725 @@
+"""The video of a static stereo camera watching the cell while the arm moves, with intruders.
+
+What a cell monitor receives, simulated: a static stereo rig (StaticCameraConfig: its pose X_WS
+and optics) films the cell at a fixed rate; the arm moves along timed trajectories; a person's
+forearm may reach into the cell. Everything is rendered by Drake's VTK renderer from one diagram
+built for the video (the scan's cell, object and truth plus the intruders), so the forearm
+occludes and is occluded like any other geometry.
+
+Interface (SI units; times in seconds on the video's simulated clock; W = robot base frame):
+
+- `CellVolume(lo_m, hi_m)`: the monitored volume, an axis-aligned box in W.
+  `MONITORED_VOLUME` is the default: the cell in front of the fence, above the table.
+- `IntruderPath(start_s, entry_m, stop_m, speed_m_s, dwell_s, radius_m, length_m, volume)`:
+  a forearm, a cylinder whose axis points along its motion. At `start_s` its centroid is at
+  `entry_m` (the whole cylinder outside `volume`); it moves in a straight line at `speed_m_s`
+  to `stop_m` (inside `volume`), stays `dwell_s`, and goes back the same way; at `end_s` it is
+  gone. `position_W(t_s)` is the centroid (3,) while it is in the cell's scene
+  (start_s <= t_s <= end_s), else None. `present(t_s)`: some of its axis lies inside `volume`
+  (what a monitor must flag). `X_WI(t_s)`: its pose (z axis along the motion), or None.
+- `default_intruder_paths(start_times_s, seed, camera, volume)`: one path per start time,
+  consecutive ones from different sides (the robot's left and right, above, the camera's
+  side), at random heights, speeds (0.5-1.0 m/s) and dwells (0.5-1.5 s); each stops fully in
+  view of both cameras of `camera` and enters and leaves from outside their view.
+- `CellFrame`: `t_s`, the raw grey `left` and `right` images ((H, W) uint8: lens distortion
+  and sensor noise applied, NOT rectified: rectify with `CellVideo.stereo`), the arm's true
+  and measured joints, and the truth `intruders_p_W` (centroids of the intruders present).
+- `CellVideo(cell, object_mesh, truth, camera, paths, robot, fps, X_WS_software)` or
+  `CellVideo.from_simulation(sim, camera, paths, fps)`; `stereo` (the rig's true StereoCamera,
+  also the software's model: its calibration is assumed exact), `X_WS` (true pose of the left
+  optical frame S), `fps`, `clock_s` (time of the next frame of the video).
+  - `frame(t_s, q_true_rad)`: one frame with the arm at its TRUE joints.
+  - `frames_along(trajectory, t0_s=None, fps=None, offsets_rad=None)`: frames every 1/fps
+    from t0_s (default: the clock) while the arm follows `trajectory` (MEASURED joints, as the
+    planner sends them; the arm shown is at measured + offsets, default the truth's encoder
+    offsets). Frames cover [t0, t0 + K/fps) with K = ceil(duration * fps): the final pose is
+    the first frame of the next call. `frames_at_rest(q_measured_rad, duration_s, t0_s=None,
+    fps=None, offsets_rad=None)`: the arm still. Both return an iterator at once and move
+    `clock_s` to the end of their segment (t0 + K/fps) when called, so consecutive calls make
+    one video at a constant rate.
+  - `robot_mask(q_measured_rad, margin_px)`: (H, W) bool on the raw LEFT image: pixels of the
+    robot's links (base to flange) and of the camera tool on the flange, rendered with the arm
+    at the MEASURED joints (what the software knows; the true arm differs by the encoder
+    offsets), whole silhouettes (also where the object or a box hides them), dilated by at
+    least `margin_px`. Rendered at half resolution and upscaled; the last mask is cached.
+  - `object_mask(margin_px)`: the hung object and its rod, same conventions.
+  - `intruder_mask(t_s, q_true_rad)`: truth only, the visible intruder pixels.
+
+A CellVideo is not thread-safe: one per thread.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from pydrake.geometry import Cylinder, Role
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import SpatialInertia
+
+from reconstruction.camera_model import PinholeCamera, StereoCamera, project_points
+from reconstruction.checks import check_fields, non_negative, positive
+from reconstruction.errors import ScannerError
+from reconstruction.transforms import invert, make_pose, transform_points
+from robots.drivers import JointTrajectory
+from robots.objects import ObjectMesh
+from robots.rx60 import RX60
+from robots.sim_camera import _RenderedCamera, undistorted_normalised
+from robots.simulation import Simulation, textured_object
+from robots.static_camera import StaticCameraConfig
+from robots.truth import Truth
+from robots.workcell import WorkcellConfig, build_workcell, placed_object
+
+# Industrial machine-vision cameras for safety monitoring run at 10-30 fps; 15 fps gives a
+# forearm at 1 m/s 67 mm between frames.
+DEFAULT_FPS = 15.0
+# Forearm of an adult: wrist to elbow about 0.27 m, plus the hand; 90 mm across (anthropometric
+# tables, 50th percentile male, rounded up).
+FOREARM_RADIUS_M = 0.045
+FOREARM_LENGTH_M = 0.35
+# A blue work-jacket sleeve: mid grey to a grey camera (0.42 lit head-on), apart from the pale
+# walls and radiator (0.8-0.9) and the dark table top. Bare skin was the grey of the wall behind
+# and left most of the forearm invisible to a grey camera.
+FOREARM_RGBA = (0.2, 0.4, 0.8, 1.0)
+# Where an absent intruder waits: far beyond the renderer's far clip (5 m), so never drawn.
+PARKED_p_W = (0.0, 0.0, -100.0)
+DEFAULT_MASK_MARGIN_PX = 8
+DEFAULT_STATIC_CAMERA = StaticCameraConfig()
+
+
+@dataclass(frozen=True)
+class CellVolume:
+    """An axis-aligned box in W (m): lower and upper corners."""
+
+    lo_m: tuple[float, float, float]
+    hi_m: tuple[float, float, float]
+
+    def __post_init__(self) -> None:
+        lo, hi = np.asarray(self.lo_m, float), np.asarray(self.hi_m, float)
+        if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite([lo, hi])):
+            raise ScannerError("volume: lo_m and hi_m must be three finite numbers each")
+        if np.any(hi <= lo):
+            raise ScannerError(f"volume: hi_m {self.hi_m} must exceed lo_m {self.lo_m}")
+
+    def contains(self, p_W: np.ndarray) -> bool:
+        p = np.asarray(p_W, float)
+        return bool(np.all(p >= self.lo_m) and np.all(p <= self.hi_m))
+
+    def meets_segment(self, a_W: np.ndarray, b_W: np.ndarray) -> bool:
+        """Whether the segment a-b has a point inside the box (slab clipping)."""
+        a, d = np.asarray(a_W, float), np.asarray(b_W, float) - np.asarray(a_W, float)
+        lo_t, hi_t = 0.0, 1.0
+        for k in range(3):
+            if abs(d[k]) < 1e-12:
+                if not self.lo_m[k] <= a[k] <= self.hi_m[k]:
+                    return False
+                continue
+            t1, t2 = (self.lo_m[k] - a[k]) / d[k], (self.hi_m[k] - a[k]) / d[k]
+            lo_t, hi_t = max(lo_t, min(t1, t2)), min(hi_t, max(t1, t2))
+            if lo_t > hi_t:
+                return False
+        return True
+
+
+# The cell a person must not reach into: above the table top (z = 0), in front of the fence
+# (x = -0.75 m) and within the table's and radiator's extent (robots/workcell.py).
+MONITORED_VOLUME = CellVolume((-0.5, -0.6, 0.0), (0.85, 0.6, 1.6))
+
+
+def _point3(value, name: str) -> tuple[float, float, float]:
+    p = np.asarray(value, float) if np.ndim(value) == 1 else None
+    if p is None or p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise ScannerError(f"intruder.{name}: expected three finite numbers (m), got {value!r}")
+    return tuple(float(v) for v in p)
+
+
+@dataclass(frozen=True)
+class IntruderPath:
+    """A forearm reaching into the cell and back (see the module docstring)."""
+
+    start_s: float = non_negative()
+    entry_m: tuple[float, float, float] = (0.5, 1.2, 0.6)
+    stop_m: tuple[float, float, float] = (0.5, 0.3, 0.6)
+    speed_m_s: float = positive(0.7)
+    dwell_s: float = non_negative(1.0)
+    radius_m: float = positive(FOREARM_RADIUS_M)
+    length_m: float = positive(FOREARM_LENGTH_M)
+    volume: CellVolume = field(default=MONITORED_VOLUME)
+
+    def __post_init__(self) -> None:
+        check_fields("intruder", self)
+        object.__setattr__(self, "entry_m", _point3(self.entry_m, "entry_m"))
+        object.__setattr__(self, "stop_m", _point3(self.stop_m, "stop_m"))
+        if self.travel_m < 1e-3:
+            raise ScannerError("intruder: entry_m and stop_m must differ")
+        tail, tip = self._ends(np.asarray(self.entry_m))
+        if self.volume.meets_segment(tail, tip):
+            raise ScannerError(
+                f"intruder.entry_m: {self.entry_m} puts the forearm inside the monitored "
+                "volume; it must enter from outside"
+            )
+        if not self.volume.contains(self.stop_m):
+            raise ScannerError(
+                f"intruder.stop_m: {self.stop_m} is outside the monitored volume "
+                f"{self.volume.lo_m}..{self.volume.hi_m}"
+            )
+
+    @property
+    def direction_W(self) -> np.ndarray:
+        """Unit vector from entry to stop: the forearm's axis, hand first."""
+        d = np.subtract(self.stop_m, self.entry_m)
+        return d / np.linalg.norm(d)
+
+    @property
+    def travel_m(self) -> float:
+        return float(np.linalg.norm(np.subtract(self.stop_m, self.entry_m)))
+
+    @property
+    def travel_s(self) -> float:
+        return self.travel_m / self.speed_m_s
+
+    @property
+    def end_s(self) -> float:
+        return self.start_s + 2 * self.travel_s + self.dwell_s
+
+    def _ends(self, p_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        half = 0.5 * self.length_m * self.direction_W
+        return p_W - half, p_W + half
+
+    def position_W(self, t_s: float) -> np.ndarray | None:
+        """Centroid (3,) in W while the forearm is in the scene, else None."""
+        if not (self.start_s <= t_s <= self.end_s):
+            return None
+        going = t_s - self.start_s
+        back = self.end_s - t_s
+        s = min(going, back, self.travel_s) * self.speed_m_s
+        return np.asarray(self.entry_m) + s * self.direction_W
+
+    def X_WI(self, t_s: float) -> np.ndarray | None:
+        """Pose of the forearm frame I (centroid, z along the axis hand first), or None."""
+        p = self.position_W(t_s)
+        if p is None:
+            return None
+        R = RotationMatrix.MakeFromOneVector(self.direction_W, 2).matrix()
+        return make_pose(R, p)
+
+    def present(self, t_s: float) -> bool:
+        """Whether some of the forearm's axis is inside the monitored volume at t_s."""
+        p = self.position_W(t_s)
+        return p is not None and self.volume.meets_segment(*self._ends(p))
+
+
+# Approach directions of default paths: the robot's right (+y) and left (-y), from above, and
+# from the camera's side of the cell (+x); each jittered per path.
+_SIDES = {
+    "+y": np.array([0.0, -1.0, 0.0]),
+    "-y": np.array([0.0, 1.0, 0.0]),
+    "above": np.array([0.0, 0.0, -1.0]),
+    "+x": np.array([-1.0, 0.0, 0.0]),
+}
+
+
+class _View:
+    """Which points both cameras of a static rig see (raw image, with a margin)."""
+
+    def __init__(self, camera: StaticCameraConfig, margin_px: float) -> None:
+        stereo = camera.stereo_camera()
+        X_WS = camera.X_WS
+        self._cams = [(stereo.left, invert(X_WS)), (stereo.right, invert(X_WS @ stereo.X_CR))]
+        self._margin = margin_px
+        self._position = np.asarray(camera.position_m, float)
+        # Beyond the sensor's undistorted extent the distortion polynomial may fold back into
+        # the image: points there are out of view whatever project_points says.
+        cam = stereo.left
+        w, h = cam.width - 1.0, cam.height - 1.0
+        s = np.linspace(0.0, 1.0, 17)
+        border = np.concatenate(
+            [np.stack([s * w, 0 * s], 1), np.stack([s * w, 0 * s + h], 1)]
+            + [np.stack([0 * s, s * h], 1), np.stack([0 * s + w, s * h], 1)]
+        )
+        self._xy_max = np.abs(undistorted_normalised(cam, border)).max(axis=0) * 1.05
+
+    def seen(self, p_W: np.ndarray) -> np.ndarray:
+        """(N,) bool: the point is in both raw images, `margin_px` inside their borders."""
+        ok = np.ones(len(p_W), bool)
+        for cam, X_SW in self._cams:
+            p_S = transform_points(X_SW, p_W)
+            z = p_S[:, 2]
+            front = z > 0.05
+            xy = p_S[:, :2] / np.where(front, z, 1.0)[:, None]
+            unfolded = front & np.all(np.abs(xy) <= self._xy_max, axis=1)
+            uv = project_points(cam, np.where(unfolded[:, None], p_S, [[0, 0, 1.0]]))
+            m = self._margin
+            inside = (
+                (uv[:, 0] >= m)
+                & (uv[:, 0] <= cam.width - 1 - m)
+                & (uv[:, 1] >= m)
+                & (uv[:, 1] <= cam.height - 1 - m)
+            )
+            ok &= unfolded & inside
+        return ok
+
+    def camera_distance_m(self, a_W: np.ndarray, b_W: np.ndarray) -> float:
+        """Distance from the rig's centre to the segment a-b."""
+        d = b_W - a_W
+        t = np.clip(np.dot(self._position - a_W, d) / np.dot(d, d), 0.0, 1.0)
+        return float(np.linalg.norm(a_W + t * d - self._position))
+
+
+def _forearm_surface_W(p_W: np.ndarray, axis_W: np.ndarray, radius: float, length: float):
+    """Points on a forearm's surface: 9 rings of 8 along its axis."""
+    R = RotationMatrix.MakeFromOneVector(axis_W, 2).matrix()
+    angles = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    ring_I = np.stack([radius * np.cos(angles), radius * np.sin(angles), np.zeros(8)], 1)
+    points = [ring_I + [0.0, 0.0, s] for s in np.linspace(-length / 2, length / 2, 9)]
+    return np.concatenate(points) @ R.T + p_W
+
+
+def _sample_path(
+    rng: np.random.Generator,
+    side: str,
+    start_s: float,
+    view: _View,
+    volume: CellVolume,
+) -> IntruderPath | None:
+    """One random path from `side`, or None when this draw does not fit the camera's view."""
+    lo, hi = np.asarray(volume.lo_m), np.asarray(volume.hi_m)
+    stop = rng.uniform(lo, hi)
+    # Away from the table (the forearm would sink into it) and from the robot's base column
+    # (it would hide inside the arm's pedestal).
+    if stop[2] < 0.15 or np.hypot(stop[0], stop[1]) < 0.25:
+        return None
+    d = _SIDES[side].copy()
+    if side == "above":
+        tilt = rng.uniform(0.0, math.radians(30))
+        azimuth = rng.uniform(0, 2 * np.pi)
+        d = np.array([math.sin(tilt) * math.cos(azimuth), math.sin(tilt) * math.sin(azimuth), -1])
+    else:
+        yaw = rng.uniform(-math.radians(30), math.radians(30))
+        c, s = math.cos(yaw), math.sin(yaw)
+        d = np.array([c * d[0] - s * d[1], s * d[0] + c * d[1], -math.tan(rng.uniform(0, 0.4))])
+    d /= np.linalg.norm(d)
+    length, radius = FOREARM_LENGTH_M, FOREARM_RADIUS_M
+    if not view.seen(_forearm_surface_W(stop, d, radius, length)).all():
+        return None
+    for back_m in np.arange(0.3, 2.5, 0.05):
+        entry = stop - back_m * d
+        ends = (entry - 0.5 * length * d, entry + 0.5 * length * d)
+        if volume.meets_segment(*ends):
+            continue
+        if view.seen(_forearm_surface_W(entry, d, radius, length)).any():
+            continue
+        if view.camera_distance_m(entry, stop) < 0.3:
+            return None
+        return IntruderPath(
+            start_s=float(start_s),
+            entry_m=tuple(entry),
+            stop_m=tuple(stop),
+            speed_m_s=float(rng.uniform(0.5, 1.0)),
+            dwell_s=float(rng.uniform(0.5, 1.5)),
+            volume=volume,
+        )
+    return None
+
+
+def default_intruder_paths(
+    start_times_s: Sequence[float],
+    seed: int,
+    camera: StaticCameraConfig = DEFAULT_STATIC_CAMERA,
+    volume: CellVolume = MONITORED_VOLUME,
+) -> tuple[IntruderPath, ...]:
+    """One forearm path per start time (see the module docstring); reproducible per seed."""
+    rng = np.random.default_rng([int(seed), 0x1A7])
+    view = _View(camera, margin_px=10.0)
+    sides = list(_SIDES)
+    first = int(rng.integers(len(sides)))
+    paths = []
+    for i, start_s in enumerate(start_times_s):
+        if not (isinstance(start_s, int | float) and math.isfinite(start_s) and start_s >= 0):
+            raise ScannerError(f"start_times_s[{i}]: expected a time >= 0 s, got {start_s!r}")
+        path = None
+        for attempt in range(2000):
+            # Each path's own side first, then the others when that side cannot be seen.
+            side = sides[(first + i + attempt // 500) % len(sides)]
+            path = _sample_path(rng, side, start_s, view, volume)
+            if path is not None:
+                break
+        if path is None:
+            raise ScannerError(
+                "default_intruder_paths: the static camera sees too little of the monitored "
+                "volume to stop a forearm in its view; aim it at the cell"
+            )
+        paths.append(path)
+    return tuple(paths)
+
+
+@dataclass(frozen=True, eq=False)
+class CellFrame:
+    """One stereo frame of the cell video (images raw: distorted, noisy, not rectified)."""
+
+    t_s: float
+    left: np.ndarray  # (H, W) uint8 grey
+    right: np.ndarray  # (H, W) uint8 grey
+    q_true_rad: np.ndarray  # (6,) the arm shown
+    q_measured_rad: np.ndarray  # (6,) what the controller reports at t_s
+    intruders_p_W: tuple[np.ndarray, ...]  # truth: centroids of the intruders present
+
+    @property
+    def intruder_present(self) -> bool:
+        return bool(self.intruders_p_W)
+
+
+class _Intruders:
+    """A build_workcell extra: one free body per path, a visual-only cylinder each."""
+
+    def __init__(self, paths: Sequence[IntruderPath]) -> None:
+        self.paths = tuple(paths)
+        self.bodies: list = []
+
+    def __call__(self, plant: MultibodyPlant, robot_instance) -> None:
+        for i, path in enumerate(self.paths):
+            instance = plant.AddModelInstance(f"intruder_{i}")
+            inertia = SpatialInertia.SolidCylinderWithMass(
+                1.5, path.radius_m, path.length_m, [0.0, 0.0, 1.0]
+            )
+            body = plant.AddRigidBody(f"intruder_{i}", instance, inertia)
+            plant.RegisterVisualGeometry(
+                body,
+                RigidTransform(),
+                Cylinder(path.radius_m, path.length_m),
+                f"intruder_{i}_visual",
+                np.array(FOREARM_RGBA),
+            )
+            self.bodies.append(body)
+
+
+def _half_camera(cam: PinholeCamera) -> PinholeCamera:
+    """The same lens on a half-resolution sensor (pixel centres at integers, as OpenCV's)."""
+    K = cam.K.copy()
+    K[:2, :2] /= 2
+    K[:2, 2] = (K[:2, 2] + 0.5) / 2 - 0.5
+    return PinholeCamera(K, cam.distortion, cam.width // 2, cam.height // 2)
+
+
+def _check_time(t_s, name: str) -> float:
+    if not (isinstance(t_s, int | float | np.floating) and math.isfinite(t_s)):
+        raise ScannerError(f"{name}: expected a finite time in seconds, got {t_s!r}")
+    return float(t_s)
+
+
+def _check_q(q, name: str) -> np.ndarray:
+    q = np.asarray(q, float)
+    if q.shape != (6,) or not np.all(np.isfinite(q)):
+        raise ScannerError(f"{name}: expected 6 finite joint positions (rad)")
+    return q
+
+
+def _check_margin(margin_px) -> int:
+    if not (isinstance(margin_px, int | np.integer) and 0 <= margin_px <= 200):
+        raise ScannerError(f"margin_px: expected an integer in [0, 200], got {margin_px!r}")
+    return int(margin_px)
+
+
+def _dilated(mask: np.ndarray, margin_px: int) -> np.ndarray:
+    if margin_px == 0:
+        return mask
+    size = 2 * margin_px + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    return cv2.dilate(mask, kernel)
+
+
+class CellVideo:
+    """The static rig's video of the cell (see the module docstring)."""
+
+    def __init__(
+        self,
+        cell: WorkcellConfig,
+        object_mesh: ObjectMesh | None,
+        truth: Truth,
+        camera: StaticCameraConfig = DEFAULT_STATIC_CAMERA,
+        paths: Sequence[IntruderPath] = (),
+        robot: RX60 = RX60(),
+        fps: float = DEFAULT_FPS,
+        X_WS_software: np.ndarray | None = None,
+    ) -> None:
+        self.fps = self._check_fps(fps)
+        self.clock_s = 0.0
+        self.paths = tuple(paths)
+        if not all(isinstance(p, IntruderPath) for p in self.paths):
+            raise ScannerError("paths: expected IntruderPath records")
+        self._truth = truth
+        self._camera = camera
+        self.stereo: StereoCamera = camera.stereo_camera()
+        self.X_WS = np.array(camera.X_WS, float)
+        self.X_WS.setflags(write=False)
+        self._X_WS_software = self.X_WS if X_WS_software is None else np.array(X_WS_software)
+        self._intruders = _Intruders(self.paths)
+        obj = None
+        if object_mesh is not None:
+            obj = placed_object(
+                textured_object(object_mesh, truth.seed),
+                object_mesh.vertices,
+                object_mesh.triangles,
+                truth.X_WO[:3, :3],
+            )
+        self._cell = build_workcell(
+            cell,
+            obj,
+            truth.X_FC,
+            truth.stereo.X_CR,
+            robot,
+            renderer=True,
+            extras=(self._intruders,),
+            include_object=object_mesh is not None,
+            X_WO=truth.X_WO,
+        )
+        self._left = _RenderedCamera(self.stereo.left)
+        self._right = _RenderedCamera(self.stereo.right)
+        self._half = _RenderedCamera(_half_camera(self.stereo.left))
+        self._scene = self._cell.diagram.CreateDefaultContext()
+        plant = self._cell.plant
+        robot_bodies = {int(b) for b in plant.GetBodyIndices(self._cell.robot)}
+        object_bodies = (
+            {int(plant.GetBodyByName("object").index())} if self._cell.has_object else set()
+        )
+        self._robot_view, self._robot_labels = self._only(robot_bodies)
+        self._object_view, self._object_labels = self._only(object_bodies)
+        intruder_bodies = {int(b.index()) for b in self._intruders.bodies}
+        self._intruder_labels = self._labels_of(intruder_bodies)
+        self._clean_key: bytes | None = None
+        self._clean: tuple[np.ndarray, np.ndarray] | None = None
+        self._mask_key: tuple | None = None
+        self._mask: np.ndarray | None = None
+        self._object_masks: dict[int, np.ndarray] = {}
+        self._bank: np.ndarray | None = None
+
+    @classmethod
+    def from_simulation(
+        cls,
+        sim: Simulation,
+        camera: StaticCameraConfig = DEFAULT_STATIC_CAMERA,
+        paths: Sequence[IntruderPath] = (),
+        fps: float = DEFAULT_FPS,
+    ) -> CellVideo:
+        """The video of the world a scan runs in (its cell, object, errors and robot)."""
+        return cls(
+            sim.workcell.config, sim.object_mesh, sim.truth, camera, paths, sim.robot.robot, fps
+        )
+
+    # --- construction helpers -------------------------------------------------------------
+    @staticmethod
+    def _check_fps(fps) -> float:
+        if not (isinstance(fps, int | float) and math.isfinite(fps) and 0 < fps <= 1000):
+            raise ScannerError(f"fps: expected frames per second in (0, 1000], got {fps!r}")
+        return float(fps)
+
+    def _geometries(self) -> list[tuple[object, int]]:
+        """(geometry id, body index) of every geometry with a perception role."""
+        plant, inspector = self._cell.plant, self._cell.scene_graph.model_inspector()
+        out = []
+        for gid in inspector.GetAllGeometryIds(Role.kPerception):
+            body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
+            out.append((gid, -1 if body is None else int(body.index())))
+        return out
+
+    def _labels_of(self, bodies: set[int]) -> np.ndarray:
+        inspector = self._cell.scene_graph.model_inspector()
+        labels = {
+            int(inspector.GetPerceptionProperties(gid).GetProperty("label", "id"))
+            for gid, body in self._geometries()
+            if body in bodies
+        }
+        return np.array(sorted(labels), np.int32)
+
+    def _only(self, bodies: set[int]):
+        """A context in which only the geometries of `bodies` are seen, and their labels."""
+        context = self._cell.diagram.CreateDefaultContext()
+        sg = self._cell.scene_graph
+        sg_context = sg.GetMyMutableContextFromRoot(context)
+        source = self._cell.plant.get_source_id()
+        for gid, body in self._geometries():
+            if body not in bodies:
+                sg.RemoveRole(sg_context, source, gid, Role.kPerception)
+        return context, self._labels_of(bodies)
+
+    # --- rendering ------------------------------------------------------------------------
+    def _pose(self, context, q_true: np.ndarray, t_s: float | None) -> None:
+        plant = self._cell.plant
+        plant_context = plant.GetMyContextFromRoot(context)
+        plant.SetPositions(plant_context, self._cell.robot, q_true)
+        for path, body in zip(self.paths, self._intruders.bodies, strict=True):
+            X = None if t_s is None else path.X_WI(t_s)
+            pose = RigidTransform(np.array(PARKED_p_W)) if X is None else RigidTransform(X)
+            plant.SetFreeBodyPose(plant_context, body, pose)
+
+    def _query(self, context):
+        sg = self._cell.scene_graph
+        return sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(context))
+
+    def _grey(self, camera: _RenderedCamera, X_WS: np.ndarray) -> np.ndarray:
+        sg = self._cell.scene_graph
+        image = self._query(self._scene).RenderColorImage(
+            camera.color, sg.world_frame_id(), RigidTransform(X_WS)
+        )
+        return camera.distort(cv2.cvtColor(np.asarray(image.data), cv2.COLOR_RGBA2GRAY))
+
+    def _labels(self, context, camera: _RenderedCamera, X_WS: np.ndarray) -> np.ndarray:
+        sg = self._cell.scene_graph
+        image = self._query(context).RenderLabelImage(
+            camera.color, sg.world_frame_id(), RigidTransform(X_WS)
+        )
+        return camera.distort(np.asarray(image.data)[..., 0].astype(np.int32), nearest=True)
+
+    def _clean_pair(self, t_s: float, q_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Noise-free grey pair; a still scene (same joints, same intruder poses) is reused."""
+        poses = [path.X_WI(t_s) for path in self.paths]
+        key = q_true.tobytes() + b"".join(b"-" if X is None else X.tobytes() for X in poses)
+        if key != self._clean_key:
+            self._pose(self._scene, q_true, t_s)
+            X_WR = self.X_WS @ self.stereo.X_CR
+            self._clean = (self._grey(self._left, self.X_WS), self._grey(self._right, X_WR))
+            self._clean_key = key
+        return self._clean
+
+    def _noise_bank(self) -> np.ndarray:
+        """Gaussian sensor noise (grey levels, rounded) for many frames: a frame adds a window
+        of it at a random offset. Drawing 2 x 307 k normals per frame took 8 ms, a third of
+        the frame budget; a window costs one addition, and each pixel still gets a different
+        draw in each frame (the offsets repeat once in ~10^4 frames)."""
+        if self._bank is None:
+            w, h = self.stereo.image_size
+            rng = np.random.default_rng([self._truth.seed, 0xBA4C])
+            noise = rng.normal(0.0, self._truth.image_noise_std, (4, h + 64, w + 64))
+            self._bank = np.round(noise).astype(np.int16)
+        return self._bank
+
+    def _noisy(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        if self._truth.image_noise_std <= 0:
+            return image.copy()
+        bank = self._noise_bank()
+        k, dy, dx = rng.integers(len(bank)), rng.integers(64), rng.integers(64)
+        h, w = image.shape
+        noise = bank[k, dy : dy + h, dx : dx + w]
+        return np.clip(image.astype(np.int16) + noise, 0, 255).astype(np.uint8)
+
+    def _frame(self, t_s: float, q_true: np.ndarray, q_measured: np.ndarray) -> CellFrame:
+        left, right = self._clean_pair(t_s, q_true)
+        # The noise of a frame depends on its time only: a frame rendered twice is the same.
+        t_us = int(round(t_s * 1e6))
+        rng = np.random.default_rng([self._truth.seed, 0xCE11, int(t_us < 0), abs(t_us)])
+        present = tuple(p.position_W(t_s) for p in self.paths if p.present(t_s))
+        return CellFrame(
+            t_s,
+            self._noisy(left, rng),
+            self._noisy(right, rng),
+            q_true.copy(),
+            q_measured.copy(),
+            present,
+        )
+
+    def frame(self, t_s: float, q_true_rad: np.ndarray) -> CellFrame:
+        """One frame at time t_s with the arm at its TRUE joints (q_measured = q_true - offsets,
+        the truth's encoder offsets)."""
+        t_s = _check_time(t_s, "t_s")
+        q_true = _check_q(q_true_rad, "q_true_rad")
+        return self._frame(t_s, q_true, q_true - self._truth.joint_offsets_rad)
+
+    def intruder_mask(self, t_s: float, q_true_rad: np.ndarray) -> np.ndarray:
+        """Truth: (H, W) bool, the intruder pixels visible in the raw left image at t_s."""
+        t_s = _check_time(t_s, "t_s")
+        self._pose(self._scene, _check_q(q_true_rad, "q_true_rad"), t_s)
+        self._clean_key = None
+        labels = self._labels(self._scene, self._left, self.X_WS)
+        return np.isin(labels, self._intruder_labels)
+
+    # --- masks ----------------------------------------------------------------------------
+    def _half_mask(self, context, labels: np.ndarray, margin_px: int) -> np.ndarray:
+        """A label set's silhouette rendered at half resolution, dilated by >= margin_px and
+        brought to the full sensor grid (each half pixel covers 2x2 full ones)."""
+        half = np.isin(self._labels(context, self._half, self._X_WS_software), labels)
+        half = _dilated(half.astype(np.uint8), (margin_px + 1) // 2)
+        w, h = self.stereo.image_size
+        return cv2.resize(half, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+
+    def robot_mask(
+        self, q_measured_rad: np.ndarray, margin_px: int = DEFAULT_MASK_MARGIN_PX
+    ) -> np.ndarray:
+        """(H, W) bool on the raw left image: robot and camera tool at the MEASURED joints."""
+        q = _check_q(q_measured_rad, "q_measured_rad")
+        margin_px = _check_margin(margin_px)
+        key = (q.tobytes(), margin_px)
+        if key != self._mask_key:
+            self._pose(self._robot_view, q, None)
+            self._mask = self._half_mask(self._robot_view, self._robot_labels, margin_px)
+            self._mask.setflags(write=False)
+            self._mask_key = key
+        return self._mask
+
+    def object_mask(self, margin_px: int = DEFAULT_MASK_MARGIN_PX) -> np.ndarray:
+        """(H, W) bool on the raw left image: the hung object and its rod (all False without
+        an object)."""
+        margin_px = _check_margin(margin_px)
+        if margin_px not in self._object_masks:
+            mask = self._half_mask(self._object_view, self._object_labels, margin_px)
+            mask.setflags(write=False)
+            self._object_masks[margin_px] = mask
+        return self._object_masks[margin_px]
+
+    # --- the clock ------------------------------------------------------------------------
+    def _segment(self, t0_s, fps, duration_s: float) -> np.ndarray:
+        """Frame times of a segment of `duration_s` starting at t0_s (default the clock);
+        moves the clock to its end."""
+        t0 = self.clock_s if t0_s is None else _check_time(t0_s, "t0_s")
+        rate = self.fps if fps is None else self._check_fps(fps)
+        count = max(0, math.ceil(duration_s * rate - 1e-9))
+        self.clock_s = t0 + count / rate
+        return t0 + np.arange(count) / rate
+
+    def _offsets(self, offsets_rad) -> np.ndarray:
+        if offsets_rad is None:
+            return np.asarray(self._truth.joint_offsets_rad, float)
+        return _check_q(offsets_rad, "offsets_rad")
+
+    def frames_along(
+        self,
+        trajectory: JointTrajectory,
+        t0_s: float | None = None,
+        fps: float | None = None,
+        offsets_rad: np.ndarray | None = None,
+    ) -> Iterator[CellFrame]:
+        """Frames while the arm follows `trajectory` (measured joints) from t0_s."""
+        if not isinstance(trajectory, JointTrajectory):
+            raise ScannerError("trajectory: expected a JointTrajectory")
+        offsets = self._offsets(offsets_rad)
+        times = self._segment(t0_s, fps, trajectory.duration_s)
+        t_start = float(times[0]) if len(times) else self.clock_s
+
+        def frames() -> Iterator[CellFrame]:
+            q_path = trajectory.positions_rad
+            for t_s in times:
+                tau = t_s - t_start
+                q = np.array([np.interp(tau, trajectory.times_s, q_path[:, j]) for j in range(6)])
+                yield self._frame(float(t_s), q + offsets, q)
+
+        return frames()
+
+    def frames_at_rest(
+        self,
+        q_measured_rad: np.ndarray,
+        duration_s: float,
+        t0_s: float | None = None,
+        fps: float | None = None,
+        offsets_rad: np.ndarray | None = None,
+    ) -> Iterator[CellFrame]:
+        """Frames for `duration_s` with the arm still at q_measured_rad (+ offsets)."""
+        q = _check_q(q_measured_rad, "q_measured_rad")
+        duration = _check_time(duration_s, "duration_s")
+        if duration < 0:
+            raise ScannerError(f"duration_s: expected a duration >= 0 s, got {duration_s!r}")
+        offsets = self._offsets(offsets_rad)
+        times = self._segment(t0_s, fps, duration)
+        return (self._frame(float(t_s), q + offsets, q) for t_s in times)
