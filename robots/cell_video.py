@@ -56,10 +56,19 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from pydrake.geometry import Cylinder, Role
+from pydrake.geometry import (
+    Box,
+    ClippingRange,
+    ColorRenderCamera,
+    Cylinder,
+    RenderCameraCore,
+    Role,
+    Sphere,
+)
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import SpatialInertia
+from pydrake.systems.sensors import CameraInfo
 
 from reconstruction.camera_model import PinholeCamera, StereoCamera, project_points
 from reconstruction.checks import check_fields, non_negative, positive
@@ -68,11 +77,16 @@ from reconstruction.transforms import invert, make_pose, transform_points
 from robots.drivers import JointTrajectory
 from robots.objects import ObjectMesh
 from robots.rx60 import RX60
-from robots.sim_camera import _RenderedCamera, undistorted_normalised
+from robots.sim_camera import (
+    FAR_CLIP_M,
+    NEAR_CLIP_M,
+    _RenderedCamera,
+    undistorted_normalised,
+)
 from robots.simulation import Simulation, textured_object
 from robots.static_camera import StaticCameraConfig
 from robots.truth import Truth
-from robots.workcell import WorkcellConfig, build_workcell, placed_object
+from robots.workcell import RENDERER_NAME, WorkcellConfig, build_workcell, placed_object
 
 # Industrial machine-vision cameras for safety monitoring run at 10-30 fps; 15 fps gives a
 # forearm at 1 m/s 67 mm between frames.
@@ -432,6 +446,56 @@ def _dilated(mask: np.ndarray, margin_px: int) -> np.ndarray:
     return cv2.dilate(mask, kernel)
 
 
+_CUBE = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+# A region of interest this large renders hardly faster than the whole image.
+MAX_ROI_FRACTION = 0.6
+
+
+def bounding_radius_m(shape) -> float | None:
+    """Radius of a sphere about the shape's origin holding it; None for other shapes."""
+    if isinstance(shape, Sphere):
+        return shape.radius()
+    if isinstance(shape, Cylinder):
+        return math.hypot(shape.radius(), shape.length() / 2)
+    if isinstance(shape, Box):
+        return 0.5 * math.sqrt(shape.width() ** 2 + shape.depth() ** 2 + shape.height() ** 2)
+    return None
+
+
+def spheres_roi_px(
+    p_S: np.ndarray, radius_m: np.ndarray, K: np.ndarray, size: tuple[int, int], margin_px: int
+) -> tuple[int, int, int, int] | None:
+    """Pixel box (u0, v0, u1, v1), ends exclusive, of a pinhole image (K, size = (w, h)) that
+    holds the images of spheres (centres p_S (N, 3) in the camera frame, radii (N,)) and the
+    principal point (Drake's renderer wants it inside every image); None when a sphere reaches
+    the camera's plane. The image of a sphere lies within that of its bounding cube."""
+    w, h = size
+    cx, cy = K[0, 2], K[1, 2]
+    lo = np.array([math.floor(cx), math.floor(cy)], float)
+    hi = lo + 1
+    if len(p_S):
+        if np.any(p_S[:, 2] - radius_m < NEAR_CLIP_M):
+            return None
+        corners = p_S[:, None, :] + radius_m[:, None, None] * _CUBE[None]
+        uv = corners[..., :2] / corners[..., 2:3] * [K[0, 0], K[1, 1]] + [cx, cy]
+        lo = np.minimum(lo, uv.reshape(-1, 2).min(axis=0))
+        hi = np.maximum(hi, uv.reshape(-1, 2).max(axis=0))
+    u0, v0 = (max(0, math.floor(x) - margin_px) for x in lo)
+    u1, v1 = min(w, math.ceil(hi[0]) + margin_px + 1), min(h, math.ceil(hi[1]) + margin_px + 1)
+    return u0, v0, u1, v1
+
+
+def _roi_camera(K: np.ndarray, roi: tuple[int, int, int, int]) -> ColorRenderCamera:
+    """The render camera of a sub-window of a pinhole image (same rays: the principal point
+    shifts; +0.5 for Drake's pixel-centre convention, as in robots/sim_camera.py)."""
+    u0, v0, u1, v1 = roi
+    info = CameraInfo(u1 - u0, v1 - v0, K[0, 0], K[1, 1], K[0, 2] + 0.5 - u0, K[1, 2] + 0.5 - v0)
+    core = RenderCameraCore(
+        RENDERER_NAME, info, ClippingRange(NEAR_CLIP_M, FAR_CLIP_M), RigidTransform()
+    )
+    return ColorRenderCamera(core, False)
+
+
 class CellVideo:
     """The static rig's video of the cell (see the module docstring)."""
 
@@ -445,6 +509,7 @@ class CellVideo:
         robot: RX60 = RX60(),
         fps: float = DEFAULT_FPS,
         X_WS_software: np.ndarray | None = None,
+        roi_rendering: bool = True,
     ) -> None:
         self.fps = self._check_fps(fps)
         self.clock_s = 0.0
@@ -490,6 +555,22 @@ class CellVideo:
         self._object_view, self._object_labels = self._only(object_bodies)
         intruder_bodies = {int(b.index()) for b in self._intruders.bodies}
         self._intruder_labels = self._labels_of(intruder_bodies)
+        # Only the arm and the forearms move: a frame renders the window holding them over a
+        # background rendered once without them (half the time of two whole renders).
+        moving = robot_bodies | intruder_bodies
+        static = {body for _, body in self._geometries()} - moving
+        self._background_view, _ = self._only(static)
+        self._backgrounds: dict[int, np.ndarray] = {}
+        inspector = self._cell.scene_graph.model_inspector()
+        self._moving = [
+            (gid, body, bounding_radius_m(inspector.GetShape(gid)))
+            for gid, body in self._geometries()
+            if body in moving
+        ]
+        self._roi_rendering = roi_rendering and all(r is not None for *_, r in self._moving)
+        self._intruder_body_path = {
+            int(b.index()): path for b, path in zip(self._intruders.bodies, self.paths, strict=True)
+        }
         self._clean_key: bytes | None = None
         self._clean: tuple[np.ndarray, np.ndarray] | None = None
         self._mask_key: tuple | None = None
@@ -560,12 +641,44 @@ class CellVideo:
         sg = self._cell.scene_graph
         return sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(context))
 
-    def _grey(self, camera: _RenderedCamera, X_WS: np.ndarray) -> np.ndarray:
+    def _render_grey(self, context, camera, X_WS: np.ndarray) -> np.ndarray:
         sg = self._cell.scene_graph
-        image = self._query(self._scene).RenderColorImage(
-            camera.color, sg.world_frame_id(), RigidTransform(X_WS)
+        image = self._query(context).RenderColorImage(
+            camera, sg.world_frame_id(), RigidTransform(X_WS)
         )
-        return camera.distort(cv2.cvtColor(np.asarray(image.data), cv2.COLOR_RGBA2GRAY))
+        return cv2.cvtColor(np.asarray(image.data), cv2.COLOR_RGBA2GRAY)
+
+    def _roi(self, camera: _RenderedCamera, X_WS: np.ndarray, t_s: float):
+        """The render-grid window holding the moving geometry seen from X_WS, or None."""
+        query = self._query(self._scene)
+        X_SW = invert(X_WS)
+        centres, radii = [], []
+        for gid, body, radius in self._moving:
+            path = self._intruder_body_path.get(body)
+            if path is not None and path.position_W(t_s) is None:
+                continue
+            centres.append(query.GetPoseInWorld(gid).translation())
+            radii.append(radius)
+        p_S = transform_points(X_SW, np.array(centres).reshape(-1, 3))
+        K, size = camera.maps.K_render, camera.maps.render_size
+        roi = spheres_roi_px(p_S, np.array(radii), K, size, margin_px=2)
+        if roi is None or (roi[2] - roi[0]) * (roi[3] - roi[1]) > MAX_ROI_FRACTION * np.prod(size):
+            return None
+        return roi
+
+    def _grey(self, camera: _RenderedCamera, X_WS: np.ndarray, t_s: float) -> np.ndarray:
+        """The grey image of the posed scene on the sensor grid (distorted, noise-free)."""
+        roi = self._roi(camera, X_WS, t_s) if self._roi_rendering else None
+        if roi is None:
+            return camera.distort(self._render_grey(self._scene, camera.color, X_WS))
+        key = id(camera)
+        if key not in self._backgrounds:
+            self._backgrounds[key] = self._render_grey(self._background_view, camera.color, X_WS)
+        grey = self._backgrounds[key].copy()
+        u0, v0, u1, v1 = roi
+        K = camera.maps.K_render
+        grey[v0:v1, u0:u1] = self._render_grey(self._scene, _roi_camera(K, roi), X_WS)
+        return camera.distort(grey)
 
     def _labels(self, context, camera: _RenderedCamera, X_WS: np.ndarray) -> np.ndarray:
         sg = self._cell.scene_graph
@@ -581,7 +694,10 @@ class CellVideo:
         if key != self._clean_key:
             self._pose(self._scene, q_true, t_s)
             X_WR = self.X_WS @ self.stereo.X_CR
-            self._clean = (self._grey(self._left, self.X_WS), self._grey(self._right, X_WR))
+            self._clean = (
+                self._grey(self._left, self.X_WS, t_s),
+                self._grey(self._right, X_WR, t_s),
+            )
             self._clean_key = key
         return self._clean
 
