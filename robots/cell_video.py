@@ -24,10 +24,14 @@ Interface (SI units; times in seconds on the video's simulated clock; W = robot 
 - `CellFrame`: `t_s`, the raw grey `left` and `right` images ((H, W) uint8: lens distortion
   and sensor noise applied, NOT rectified: rectify with `CellVideo.stereo`), the arm's true
   and measured joints, and the truth `intruders_p_W` (centroids of the intruders present).
-- `CellVideo(cell, object_mesh, truth, camera, paths, robot, fps, X_WS_software)` or
-  `CellVideo.from_simulation(sim, camera, paths, fps)`; `stereo` (the rig's true StereoCamera,
-  also the software's model: its calibration is assumed exact), `X_WS` (true pose of the left
-  optical frame S), `fps`, `clock_s` (time of the next frame of the video).
+- `CellVideo(cell, object_mesh, truth, camera, paths, robot, fps, X_WS_software,
+  roi_rendering)` or `CellVideo.from_simulation(sim, camera, paths, fps)`: its own diagram (the
+  scan's cell config, object mesh, truth and robot; the scan's Simulation is not touched).
+  `stereo` (the rig's true StereoCamera, also the software's model: its calibration is assumed
+  exact), `X_WS` (true pose of the left optical frame S; the masks use `X_WS_software` when
+  given, e.g. an eye-to-hand result), `fps`, `clock_s` (time of the next frame of the video),
+  `paths`. Sensor noise: the truth's `image_noise_std`, seeded by the truth's seed and the
+  frame time (the same frame twice is the same image).
   - `frame(t_s, q_true_rad)`: one frame with the arm at its TRUE joints.
   - `frames_along(trajectory, t0_s=None, fps=None, offsets_rad=None)`: frames every 1/fps
     from t0_s (default: the clock) while the arm follows `trajectory` (MEASURED joints, as the
@@ -45,7 +49,12 @@ Interface (SI units; times in seconds on the video's simulated clock; W = robot 
   - `object_mask(margin_px)`: the hung object and its rod, same conventions.
   - `intruder_mask(t_s, q_true_rad)`: truth only, the visible intruder pixels.
 
-A CellVideo is not thread-safe: one per thread.
+Cost (640x480, software OpenGL as on the build machines): a frame renders only the window
+holding the arm and the forearms over a background rendered once (`roi_rendering`, default on;
+whole renders differ from it in ~10 edge pixels), about 13 ms per camera for the default view
+against 28 ms for a whole render; the half-resolution label render of `robot_mask` ~4 ms; noise
+and distortion ~1 ms. A still scene (arm at rest, no forearm moving) is rendered once and only
+gets new noise (< 1 ms a frame). A CellVideo is not thread-safe: one per thread.
 """
 
 from __future__ import annotations
@@ -240,11 +249,10 @@ _SIDES = {
 class _View:
     """Which points both cameras of a static rig see (raw image, with a margin)."""
 
-    def __init__(self, camera: StaticCameraConfig, margin_px: float) -> None:
+    def __init__(self, camera: StaticCameraConfig) -> None:
         stereo = camera.stereo_camera()
         X_WS = camera.X_WS
         self._cams = [(stereo.left, invert(X_WS)), (stereo.right, invert(X_WS @ stereo.X_CR))]
-        self._margin = margin_px
         self._position = np.asarray(camera.position_m, float)
         # Beyond the sensor's undistorted extent the distortion polynomial may fold back into
         # the image: points there are out of view whatever project_points says.
@@ -257,9 +265,10 @@ class _View:
         )
         self._xy_max = np.abs(undistorted_normalised(cam, border)).max(axis=0) * 1.05
 
-    def seen(self, p_W: np.ndarray) -> np.ndarray:
-        """(N,) bool: the point is in both raw images, `margin_px` inside their borders."""
-        ok = np.ones(len(p_W), bool)
+    def seen(self, p_W: np.ndarray, margin_px: float) -> np.ndarray:
+        """(2, N) bool: each point is in the left (row 0) and right (row 1) raw image,
+        `margin_px` inside its borders (a negative margin: or that far outside)."""
+        seen = []
         for cam, X_SW in self._cams:
             p_S = transform_points(X_SW, p_W)
             z = p_S[:, 2]
@@ -267,15 +276,15 @@ class _View:
             xy = p_S[:, :2] / np.where(front, z, 1.0)[:, None]
             unfolded = front & np.all(np.abs(xy) <= self._xy_max, axis=1)
             uv = project_points(cam, np.where(unfolded[:, None], p_S, [[0, 0, 1.0]]))
-            m = self._margin
+            m = margin_px
             inside = (
                 (uv[:, 0] >= m)
                 & (uv[:, 0] <= cam.width - 1 - m)
                 & (uv[:, 1] >= m)
                 & (uv[:, 1] <= cam.height - 1 - m)
             )
-            ok &= unfolded & inside
-        return ok
+            seen.append(unfolded & inside)
+        return np.array(seen)
 
     def camera_distance_m(self, a_W: np.ndarray, b_W: np.ndarray) -> float:
         """Distance from the rig's centre to the segment a-b."""
@@ -291,6 +300,12 @@ def _forearm_surface_W(p_W: np.ndarray, axis_W: np.ndarray, radius: float, lengt
     ring_I = np.stack([radius * np.cos(angles), radius * np.sin(angles), np.zeros(8)], 1)
     points = [ring_I + [0.0, 0.0, s] for s in np.linspace(-length / 2, length / 2, 9)]
     return np.concatenate(points) @ R.T + p_W
+
+
+# A stopped forearm lies 10 px inside both images; an entering one has no surface sample
+# within 25 px of either image (the samples are up to ~20 px apart on a near forearm).
+_STOP_MARGIN_PX = 10.0
+_ENTRY_MARGIN_PX = -25.0
 
 
 def _sample_path(
@@ -318,14 +333,14 @@ def _sample_path(
         d = np.array([c * d[0] - s * d[1], s * d[0] + c * d[1], -math.tan(rng.uniform(0, 0.4))])
     d /= np.linalg.norm(d)
     length, radius = FOREARM_LENGTH_M, FOREARM_RADIUS_M
-    if not view.seen(_forearm_surface_W(stop, d, radius, length)).all():
+    if not view.seen(_forearm_surface_W(stop, d, radius, length), _STOP_MARGIN_PX).all():
         return None
     for back_m in np.arange(0.3, 2.5, 0.05):
         entry = stop - back_m * d
         ends = (entry - 0.5 * length * d, entry + 0.5 * length * d)
         if volume.meets_segment(*ends):
             continue
-        if view.seen(_forearm_surface_W(entry, d, radius, length)).any():
+        if view.seen(_forearm_surface_W(entry, d, radius, length), _ENTRY_MARGIN_PX).any():
             continue
         if view.camera_distance_m(entry, stop) < 0.3:
             return None
@@ -348,7 +363,7 @@ def default_intruder_paths(
 ) -> tuple[IntruderPath, ...]:
     """One forearm path per start time (see the module docstring); reproducible per seed."""
     rng = np.random.default_rng([int(seed), 0x1A7])
-    view = _View(camera, margin_px=10.0)
+    view = _View(camera)
     sides = list(_SIDES)
     first = int(rng.integers(len(sides)))
     paths = []
@@ -808,8 +823,8 @@ class CellVideo:
         offsets_rad: np.ndarray | None = None,
     ) -> Iterator[CellFrame]:
         """Frames while the arm follows `trajectory` (measured joints) from t0_s."""
-        if not isinstance(trajectory, JointTrajectory):
-            raise ScannerError("trajectory: expected a JointTrajectory")
+        if not isinstance(trajectory, JointTrajectory) or trajectory.positions_rad.shape[1] != 6:
+            raise ScannerError("trajectory: expected a JointTrajectory of the 6 joints")
         offsets = self._offsets(offsets_rad)
         times = self._segment(t0_s, fps, trajectory.duration_s)
         t_start = float(times[0]) if len(times) else self.clock_s

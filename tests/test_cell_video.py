@@ -71,6 +71,8 @@ def test_intruder_appears_where_its_path_projects_only_while_present(video, path
         t_stop = path.start_s + path.travel_s + 0.5 * path.dwell_s
         assert not path.present(path.start_s) and not path.present(path.end_s)
         assert path.present(t_stop) and path.position_W(path.end_s + 0.01) is None
+        # It enters and leaves out of the camera's sight.
+        assert not video.intruder_mask(path.start_s, q_true).any()
         seen = video.frame(t_stop, q_true)
         assert seen.intruder_present
         p_W = path.position_W(t_stop)
