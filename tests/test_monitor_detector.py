@@ -160,7 +160,7 @@ def test_update_runs_well_above_the_frame_rate(scene):
         ("clear_time_s", -1.0),
         ("volume_max_m", (0.0, 0.0)),
         ("volume_max_m", (-1.0, 1.0, 1.0)),
-        ("match_uniqueness", 1.5),
+        ("min_inside_fraction", 1.5),
     ],
 )
 def test_bad_config_names_the_field(field, value):

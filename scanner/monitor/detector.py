@@ -65,16 +65,22 @@ class MonitorConfig:
     settle_frames: int = integer(20, minimum=0)
     morph_kernel_px: int = integer(5, minimum=1)
     mask_margin_px: int = integer(8, minimum=0)
-    volume_min_m: tuple[float, float, float] = (-0.5, -0.55, 0.02)
-    volume_max_m: tuple[float, float, float] = (0.8, 0.55, 1.6)
+    # The cell in front of the fence (x = -0.75 m), above the table top (z = 0) and within the
+    # table's and radiator's extent (robots/workcell.py).
+    volume_min_m: tuple[float, float, float] = (-0.5, -0.6, 0.0)
+    volume_max_m: tuple[float, float, float] = (0.85, 0.6, 1.6)
     # Nearest depth searched by the stereo match (corners closer to the rig count as this).
     min_depth_m: float = positive(0.3)
-    # RMS grey-level difference of a component's pixels between its left view and the best
-    # right match; above it the match (and so the depth) is not trusted.
-    match_rms_max: float = positive(20.0)
-    # Best match cost over the best cost 3 px or more away: near 1 means an ambiguous depth.
-    match_uniqueness: float = fraction(0.9)
-    min_inside_fraction: float = fraction(0.25)
+    # Depth is matched at 1/stereo_downscale resolution: at 1 m a 2 px disparity step of the
+    # static rig (f 640 px, b 0.25 m) is 12 mm, far below what the volume check needs.
+    stereo_downscale: int = integer(2, minimum=1, maximum=4)
+    stereo_block_px: int = integer(5, minimum=3, maximum=11)
+    # Fewer of a component's pixels matched than this: its depth is unknown (not confirmed).
+    min_valid_fraction: float = fraction(0.1)
+    min_inside_fraction: float = fraction(0.3)
+    # Pixels of a confirmed intrusion are not learnt by the background model (dilated by this,
+    # for the motion until the next frame): a person standing still stays an intrusion.
+    hold_margin_px: int = integer(16, minimum=0)
     max_candidates: int = integer(3, minimum=1)
     clear_time_s: float = non_negative(1.0)
 
@@ -92,7 +98,8 @@ class MonitorConfig:
 class Detection:
     """What one frame says about the cell.
 
-    intrusion: a candidate confirmed inside the monitored volume by stereo.
+    intrusion: a candidate confirmed inside the monitored volume by stereo on this frame
+    (depth_confirmed), or the continuation of one confirmed before (overlapping it).
     area_px, centroid_px: of the reported component (the largest confirmed one, else the largest
     candidate) in full-resolution left-image pixels; 0 and None without a candidate.
     point_W: its 3D centroid (m) when stereo found its depth, else None.
@@ -113,22 +120,18 @@ class Detection:
 
 @dataclass(frozen=True, eq=False)
 class DepthCheck:
-    """The stereo verdict on one component: its world centroid (or None), the fraction of its
-    pixels inside the volume, the match's RMS grey difference and whether all checks passed."""
+    """The stereo verdict on one component: its world centroid (median of its points, or None
+    without enough depth), the fraction of its matched pixels, the fraction of its points inside
+    the volume and whether it is confirmed inside."""
 
     point_W: np.ndarray | None
+    valid_fraction: float
     inside_fraction: float
-    match_rms: float
     confirmed: bool
 
 
-def _odd(n: float) -> int:
-    n = max(1, int(round(n)))
-    return n if n % 2 else n + 1
-
-
-def _ellipse(size: int) -> np.ndarray:
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+# OpenCV's StereoSGBM returns fixed-point disparities with 4 fractional bits.
+_SGBM_SCALE = 16.0
 
 
 def depth_check(
@@ -139,44 +142,69 @@ def depth_check(
     mask_rect: np.ndarray,
     d_range: tuple[int, int],
 ) -> DepthCheck:
-    """Match a component's pixels (mask_rect, uint8, rectified left grid) along their rows of
-    the rectified right image over disparities d_range = (d_lo, d_hi) px: one masked
-    sum-of-squared-differences per disparity. A rigid intruder at 1-2 m spans a few cm of depth,
-    below the matching's resolution, so one disparity per component is enough to place it."""
-    none = DepthCheck(None, 0.0, math.inf, False)
+    """Semi-global matching (OpenCV's StereoSGBM) of the rows of a component's rectified
+    bounding box, at 1/`stereo_downscale` resolution, over disparities d_range = (d_lo, d_hi)
+    full-resolution px; the component's matched pixels (mask_rect, uint8, rectified left grid)
+    are lifted to the world. A forearm is nearly uniform: its inside matches only through the
+    smoothness SGM carries in from its silhouette, which a masked block match would not have."""
+    none = DepthCheck(None, 0.0, 0.0, False)
     x, y, w, h = cv2.boundingRect(mask_rect)
-    n = int(np.count_nonzero(mask_rect[y : y + h, x : x + w]))
-    if n == 0:
+    if w == 0 or h == 0:
         return none
+    s = config.stereo_downscale
+    block = config.stereo_block_px
     d_lo, d_hi = d_range
-    d_hi = min(d_hi, x)
-    if d_hi - d_lo < 4:
+    lo = d_lo // s
+    num = 16 * math.ceil((d_hi / s - lo + 1) / 16)
+    # Rows with room for the block; columns from the farthest match of the box's left edge.
+    y0, y1 = max(0, y - block * s), min(mask_rect.shape[0], y + h + block * s)
+    x0, x1 = max(0, x - (lo + num + block) * s), x + w
+    size = ((x1 - x0) // s, (y1 - y0) // s)
+    # Whole s x s blocks, so that a strip pixel maps back to full resolution exactly.
+    x1, y1 = x0 + size[0] * s, y0 + size[1] * s
+    # Near the image's left edge fewer disparities fit (SGBM needs them inside the strip).
+    num = min(num, 16 * ((size[0] - lo - block // 2 - 1) // 16))
+    if num < 16 or size[1] < 2 * block:
         return none
-    patch = left_rect[y : y + h, x : x + w].astype(np.float32)
-    strip = right_rect[y : y + h, x - d_hi : x + w - d_lo].astype(np.float32)
-    weight = mask_rect[y : y + h, x : x + w].astype(np.float32) / 255.0
-    cost = cv2.matchTemplate(strip, patch, cv2.TM_SQDIFF, mask=weight)[0]
-    j = int(np.argmin(cost))
-    best = float(cost[j])
-    rms = math.sqrt(max(best, 0.0) / n)
-    far = np.abs(np.arange(len(cost)) - j) >= 3
-    # A minimum at either end of the search means the true disparity lies outside it.
-    at_edge = j == 0 or j == len(cost) - 1
-    distinct = best <= config.match_uniqueness * float(cost[far].min()) if far.any() else False
-    if at_edge or not distinct or rms > config.match_rms_max:
-        return DepthCheck(None, 0.0, rms, False)
-    # Sub-pixel minimum of the parabola through the best cost and its neighbours.
-    c0, c1, c2 = cost[j - 1], cost[j], cost[j + 1]
-    denom = c0 - 2 * c1 + c2
-    offset = 0.5 * (c0 - c2) / denom if denom > 0 else 0.0
-    d = d_hi - (j + offset)
-    v, u = np.nonzero(mask_rect[y : y + h, x : x + w])
-    step = max(1, len(u) // 400)
-    uvd = np.stack([u[::step] + x, v[::step] + y, np.full(len(u[::step]), d)], axis=1)
-    p_W = lift_rectified_W(rig, uvd.astype(np.float64))
+    strips = [
+        cv2.resize(im[y0:y1, x0:x1], size, interpolation=cv2.INTER_AREA)
+        for im in (left_rect, right_rect)
+    ]
+    mask = cv2.resize(mask_rect[y0:y1, x0:x1], size, interpolation=cv2.INTER_NEAREST) > 0
+    matcher = cv2.StereoSGBM_create(
+        minDisparity=lo,
+        numDisparities=num,
+        blockSize=block,
+        # OpenCV's suggested penalties for one channel: 8 and 32 times the block area.
+        P1=8 * block * block,
+        P2=32 * block * block,
+        uniquenessRatio=0,
+        mode=cv2.STEREO_SGBM_MODE_SGBM,
+    )
+    raw = matcher.compute(strips[0], strips[1])
+    found = mask & (raw >= lo * _SGBM_SCALE)
+    n_mask = int(np.count_nonzero(mask))
+    valid_fraction = float(np.count_nonzero(found)) / max(n_mask, 1)
+    if n_mask == 0 or valid_fraction < config.min_valid_fraction:
+        return DepthCheck(None, valid_fraction, 0.0, False)
+    v, u = np.nonzero(found)
+    d = raw[v, u].astype(np.float64) / _SGBM_SCALE
+    # Back to full-resolution rectified pixels (centres of the s x s blocks).
+    uvd = np.stack([(u + 0.5) * s - 0.5 + x0, (v + 0.5) * s - 0.5 + y0, d * s], axis=1)
+    p_W = lift_rectified_W(rig, uvd)
     inside = float(np.mean(config.inside(p_W)))
-    centroid_W = lift_rectified_W(rig, np.array([[u.mean() + x, v.mean() + y, d]]))[0]
-    return DepthCheck(centroid_W, inside, rms, inside >= config.min_inside_fraction)
+    return DepthCheck(
+        np.median(p_W, axis=0), valid_fraction, inside, inside >= config.min_inside_fraction
+    )
+
+
+def _odd(n: float) -> int:
+    n = max(1, int(round(n)))
+    return n if n % 2 else n + 1
+
+
+def _ellipse(size: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
 
 
 class IntrusionDetector:
@@ -199,6 +227,8 @@ class IntrusionDetector:
         )
         self._margin_kernel = _ellipse(2 * math.ceil(c.mask_margin_px / s) + 1)
         self._morph_kernel = _ellipse(_odd(c.morph_kernel_px / s))
+        self._hold_kernel = _ellipse(2 * math.ceil(c.hold_margin_px / s) + 1)
+        self._hold: np.ndarray | None = None
         d_min, d_max = disparity_range(rig, c.volume_min_m, c.volume_max_m, c.min_depth_m)
         # Search a quarter beyond the volume's disparities on both sides, so that a component
         # just outside the volume finds its true depth instead of a false minimum at the edge.
@@ -257,16 +287,21 @@ class IntrusionDetector:
         small = self._small(left)
         mask = self._small_mask(robot_mask, object_mask)
         unmasked = mask == 0
+        learn = unmasked if self._hold is None else unmasked & (self._hold == 0)
         if self._seen is None:
             self._seen = small.copy()
             self._seen_count = np.zeros(small.shape, np.uint16)
-        # The model only learns what it saw of the cell: under the robot it is fed the last
-        # grey seen there unmasked.
-        np.copyto(self._seen, small, where=unmasked)
-        fg_bg = self._bg.apply(self._seen)
+        self._frames += 1
+        # Judged against the model as it was, then learnt: only what the model saw of the cell,
+        # under the robot (and a held intruder) the last grey seen there.
+        fg_bg = self._bg.apply(small, learningRate=0.0) if self._frames > 1 else None
+        np.copyto(self._seen, small, where=learn)
+        # A running mean while warming up, then OpenCV's 1/history: a person standing still is
+        # not learnt as background within a few frames once the cell is being watched.
+        n = self._frames if self._frames <= c.warmup_frames else c.bg_history_frames
+        self._bg.apply(self._seen, learningRate=1.0 / n)
         count = self._seen_count
         np.add(count, unmasked, out=count, where=count < 60000)
-        self._frames += 1
 
         motion = None
         if len(self._prev) == 2:
@@ -288,7 +323,8 @@ class IntrusionDetector:
             fg = cv2.bitwise_or(fg, motion)
         fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self._morph_kernel)
         fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self._morph_kernel)
-        detection = self._decide(fg, fg_bg, settled, left, right, t_s)
+        detection, hold = self._decide(fg, fg_bg, settled, left, right, t_s)
+        self._hold = None if hold is None else cv2.dilate(hold, self._hold_kernel)
         if detection.intrusion:
             self._last_intrusion_t = t_s
         since = t_s - max(self._last_intrusion_t, self._first_ready_t)
@@ -304,18 +340,19 @@ class IntrusionDetector:
             clear,
         )
 
-    def _decide(self, fg, fg_bg, settled, left, right, t_s) -> Detection:
+    def _decide(self, fg, fg_bg, settled, left, right, t_s) -> tuple[Detection, np.ndarray | None]:
+        """The reported detection and the confirmed components' pixels (downscaled grid)."""
         c = self.config
         s = c.downscale
         n, labels, stats, centroids = cv2.connectedComponentsWithStats(fg, connectivity=8)
         areas = stats[1:, cv2.CC_STAT_AREA] * s * s
         big = [i + 1 for i in np.argsort(-areas) if areas[i] >= c.min_area_px]
         if not big:
-            return Detection(t_s, False, 0, None, None, False, 0, False)
+            return Detection(t_s, False, 0, None, None, False, 0, False), None
         rect = self.rig.rect
         left_rect, right_rect = rectify_pair(rect, left, right)
         w, h = self.rig.image_size
-        reported = None
+        reported, confirmed = None, []
         for i in big[: c.max_candidates]:
             x, y, bw, bh = stats[i, :4]
             component = labels[y : y + bh, x : x + bw] == i
@@ -333,9 +370,14 @@ class IntrusionDetector:
                 float((centroids[i, 0] + 0.5) * s - 0.5),
                 float((centroids[i, 1] + 0.5) * s - 0.5),
             )
+            # A held intruder stays held while it is a candidate, even on a frame whose stereo
+            # match fails (a uniform forearm on a uniform table matches only at its edges).
+            held = self._hold is not None and np.any(
+                self._hold[y : y + bh, x : x + bw][labels[y : y + bh, x : x + bw] == i]
+            )
             record = Detection(
                 t_s,
-                check.confirmed,
+                check.confirmed or held,
                 int(areas[i - 1]),
                 centroid,
                 check.point_W,
@@ -343,7 +385,12 @@ class IntrusionDetector:
                 len(big),
                 False,
             )
-            if check.confirmed:
-                return record
+            if check.confirmed or held:
+                confirmed.append(i)
+                if reported is None or not reported.intrusion:
+                    reported = record
             reported = reported or record
-        return reported
+        hold = None
+        if confirmed:
+            hold = np.isin(labels, confirmed).view(np.uint8) * np.uint8(255)
+        return reported, hold
