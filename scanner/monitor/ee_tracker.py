@@ -61,10 +61,11 @@ class TrackerConfig:
 
 @dataclass(frozen=True, eq=False)
 class TrackEstimate:
-    """The tracker's estimate at frame time t_s: p_W (m) and v_W (m/s) in the world, None before
-    the first measurement; measured: this frame gave a measurement (of the previous frame's
-    time); error_to_fk_m: |p_W - forward kinematics| (None without p_W); disagreement: the
-    error exceeded disagreement_m on disagreement_frames measured frames in a row."""
+    """The tracker's estimate at frame time t_s: p_W (m) and v_W (m/s) in the world, None
+    before the first measurement and after max_gap_s without one (track lost); measured: this
+    frame gave a measurement (of the previous frame's time); error_to_fk_m: |p_W - forward
+    kinematics| (None without p_W); disagreement: the error exceeded disagreement_m on
+    disagreement_frames measured frames in a row."""
 
     t_s: float
     p_W: np.ndarray | None
@@ -221,7 +222,8 @@ class EndEffectorTracker:
                     self._kf.predict()
                     self._kf.correct(p_meas.astype(np.float32).reshape(3, 1))
                     self._t_filter = t_mid
-        if self._t_filter is None:
+        if self._t_filter is None or t_s - self._t_filter > c.max_gap_s:
+            # No track yet, or lost: extrapolating a stale velocity would invent positions.
             return TrackEstimate(t_s, None, None, measured, None, False)
         state = self._kf.statePost.ravel().astype(float)
         v_W = state[3:]
