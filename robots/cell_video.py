@@ -46,6 +46,10 @@ Interface (SI units; times in seconds on the video's simulated clock; W = robot 
     at the MEASURED joints (what the software knows; the true arm differs by the encoder
     offsets), whole silhouettes (also where the object or a box hides them), dilated by at
     least `margin_px`. Rendered at half resolution and upscaled; the last mask is cached.
+  - `tool_mask(q_measured_rad, side, margin_px)`: (H, W) bool on the raw `side` ("left" or
+    "right") image: the camera tool alone (bracket and body; not the links), whole silhouette
+    at the MEASURED joints, rendered at full resolution in the window holding the tool (~5 ms
+    a side), dilated by `margin_px`. What the end-effector tracker fits to the images.
   - `object_mask(margin_px)`: the hung object and its rod, same conventions.
   - `intruder_mask(t_s, q_true_rad)`: truth only, the visible intruder pixels.
 
@@ -461,6 +465,17 @@ def _dilated(mask: np.ndarray, margin_px: int) -> np.ndarray:
     return cv2.dilate(mask, kernel)
 
 
+def _full_size(half: np.ndarray, video: CellVideo) -> np.ndarray:
+    """A half-resolution mask on the full sensor grid (each half pixel covers 2x2 full ones)."""
+    w, h = video.stereo.image_size
+    return cv2.resize(half, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+
+
+def _is_tool_geometry(cell, gid) -> bool:
+    """The camera tool's visual boxes (robots/workcell.py names them camera_tool_visual_i)."""
+    return "camera_tool_visual" in cell.scene_graph.model_inspector().GetName(gid)
+
+
 _CUBE = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
 # A region of interest this large renders hardly faster than the whole image.
 MAX_ROI_FRACTION = 0.6
@@ -567,6 +582,10 @@ class CellVideo:
             {int(plant.GetBodyByName("object").index())} if self._cell.has_object else set()
         )
         self._robot_view, self._robot_labels = self._only(robot_bodies)
+        inspector = self._cell.scene_graph.model_inspector()
+        tool = [gid for gid, _ in self._geometries() if _is_tool_geometry(self._cell, gid)]
+        self._tool_view = self._only_geometries(set(tool))
+        self._tool_spheres = [(gid, bounding_radius_m(inspector.GetShape(gid))) for gid in tool]
         self._object_view, self._object_labels = self._only(object_bodies)
         intruder_bodies = {int(b.index()) for b in self._intruders.bodies}
         self._intruder_labels = self._labels_of(intruder_bodies)
@@ -590,6 +609,7 @@ class CellVideo:
         self._clean: tuple[np.ndarray, np.ndarray] | None = None
         self._mask_key: tuple | None = None
         self._mask: np.ndarray | None = None
+        self._tool_masks: dict[tuple, np.ndarray] = {}
         self._object_masks: dict[int, np.ndarray] = {}
         self._bank: np.ndarray | None = None
 
@@ -633,14 +653,19 @@ class CellVideo:
 
     def _only(self, bodies: set[int]):
         """A context in which only the geometries of `bodies` are seen, and their labels."""
+        keep = {gid for gid, body in self._geometries() if body in bodies}
+        return self._only_geometries(keep), self._labels_of(bodies)
+
+    def _only_geometries(self, keep: set):
+        """A context in which only the geometries with ids in `keep` are seen."""
         context = self._cell.diagram.CreateDefaultContext()
         sg = self._cell.scene_graph
         sg_context = sg.GetMyMutableContextFromRoot(context)
         source = self._cell.plant.get_source_id()
-        for gid, body in self._geometries():
-            if body not in bodies:
+        for gid, _ in self._geometries():
+            if gid not in keep:
                 sg.RemoveRole(sg_context, source, gid, Role.kPerception)
-        return context, self._labels_of(bodies)
+        return context
 
     # --- rendering ------------------------------------------------------------------------
     def _pose(self, context, q_true: np.ndarray, t_s: float | None) -> None:
@@ -772,9 +797,7 @@ class CellVideo:
         """A label set's silhouette rendered at half resolution, dilated by >= margin_px and
         brought to the full sensor grid (each half pixel covers 2x2 full ones)."""
         half = np.isin(self._labels(context, self._half, self._X_WS_software), labels)
-        half = _dilated(half.astype(np.uint8), (margin_px + 1) // 2)
-        w, h = self.stereo.image_size
-        return cv2.resize(half, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+        return _full_size(_dilated(half.astype(np.uint8), (margin_px + 1) // 2), self)
 
     def robot_mask(
         self, q_measured_rad: np.ndarray, margin_px: int = DEFAULT_MASK_MARGIN_PX
@@ -789,6 +812,60 @@ class CellVideo:
             self._mask.setflags(write=False)
             self._mask_key = key
         return self._mask
+
+    def tool_mask(
+        self,
+        q_measured_rad: np.ndarray,
+        side: str = "left",
+        margin_px: int = DEFAULT_MASK_MARGIN_PX,
+    ) -> np.ndarray:
+        """(H, W) bool on the raw `side` ("left" or "right") image: the camera tool alone
+        (bracket and body, not the links) at the MEASURED joints, dilated by >= margin_px, seen
+        from the software's rig pose. The two sides of one q are rendered together and cached."""
+        q = _check_q(q_measured_rad, "q_measured_rad")
+        margin_px = _check_margin(margin_px)
+        if side not in ("left", "right"):
+            raise ScannerError(f"side: expected 'left' or 'right', got {side!r}")
+        key = (q.tobytes(), margin_px)
+        if key not in self._tool_masks:
+            self._pose(self._tool_view, q, None)
+            X_WR = self._X_WS_software @ self.stereo.X_CR
+            masks = {}
+            for name, camera, X_WS in (
+                ("left", self._left, self._X_WS_software),
+                ("right", self._right, X_WR),
+            ):
+                tool = self._tool_pixels(camera, X_WS)
+                mask = _dilated(tool.astype(np.uint8), margin_px).astype(bool)
+                mask.setflags(write=False)
+                masks[name] = mask
+            # Frames come in order: only the last pose's masks are worth keeping.
+            self._tool_masks = {key: masks}
+        return self._tool_masks[key][side]
+
+    def _tool_pixels(self, camera: _RenderedCamera, X_WS: np.ndarray) -> np.ndarray:
+        """The posed tool view's silhouette on the sensor grid at full resolution (the tracker
+        fits its outline: half resolution doubled its error), rendered in the window holding
+        the tool only (half the time of a whole label render)."""
+        query = self._query(self._tool_view)
+        centres = [query.GetPoseInWorld(gid).translation() for gid, _ in self._tool_spheres]
+        radii = np.array([r for _, r in self._tool_spheres])
+        p_S = transform_points(invert(X_WS), np.array(centres))
+        K, (w, h) = camera.maps.K_render, camera.maps.render_size
+        roi = spheres_roi_px(p_S, radii, K, (w, h), margin_px=2)
+        sg = self._cell.scene_graph
+        if roi is None:
+            labels = self._labels(self._tool_view, camera, X_WS)
+        else:
+            u0, v0, u1, v1 = roi
+            window = query.RenderLabelImage(
+                _roi_camera(K, roi), sg.world_frame_id(), RigidTransform(X_WS)
+            )
+            grid = np.full((h, w), -1, np.int32)
+            grid[v0:v1, u0:u1] = np.asarray(window.data)[..., 0]
+            labels = camera.distort(grid, nearest=True)
+        # Every label is the tool's: nothing else has a perception role in this view.
+        return np.isin(labels, self._robot_labels)
 
     def object_mask(self, margin_px: int = DEFAULT_MASK_MARGIN_PX) -> np.ndarray:
         """(H, W) bool on the raw left image: the hung object and its rod (all False without

@@ -11,6 +11,7 @@ import pytest
 from reconstruction.camera_model import project_points
 from reconstruction.errors import ScannerError
 from reconstruction.transforms import invert, transform_points
+from robots.camera_tool import tool_visual_boxes
 from robots.cell_video import (
     MONITORED_VOLUME,
     CellVideo,
@@ -212,3 +213,31 @@ def test_window_rendering_matches_whole_image_rendering(vase_sim, paths, video):
         a, b = video.frame(t_s, q_true), whole.frame(t_s, q_true)
         for x, y in ((a.left, b.left), (a.right, b.right)):
             assert _changed(x, y).mean() < 0.001
+
+
+def test_tool_mask_is_the_dark_camera_tool_in_both_images(video, vase_sim):
+    kinematics = Kinematics()
+    q = HOME_Q + np.array([0.3, 0.1, -0.2, 0.0, 0.2, 0.0])
+    frame = video.frame(0.1, q + vase_sim.truth.joint_offsets_rad)
+    X_WF = kinematics.X_WF(q)
+    # The centre of the tool's body, in front of its bracket.
+    p_W = X_WF[:3, :3] @ np.array(tool_visual_boxes()[1].p_FB) + X_WF[:3, 3]
+    robot = video.robot_mask(q, 2)
+    areas = []
+    for right, image in ((False, frame.left), (True, frame.right)):
+        side = "right" if right else "left"
+        mask = video.tool_mask(q, side, 0)
+        u, v = np.round(_project(video, p_W, right)).astype(int)
+        assert mask[v, u]
+        # The tool (0.15 grey) is the darkest thing on the arm; the links are 0.5-0.8.
+        assert np.median(image[mask]) < 60
+        ring = video.tool_mask(q, side, 4) & ~video.tool_mask(q, side, 1)
+        assert np.median(image[ring]) > 60
+        areas.append(mask.sum())
+        if not right:
+            assert robot[mask].all() and mask.sum() < 0.3 * robot.sum()
+    # A 157 x 47 mm box about 0.9 m away: a few thousand pixels in either image.
+    assert min(areas) > 1000 and max(areas) < 2 * min(areas)
+    assert not np.array_equal(video.tool_mask(q, "left", 0), video.tool_mask(q, "right", 0))
+    with pytest.raises(ScannerError, match="side"):
+        video.tool_mask(q, "top", 0)

@@ -1,14 +1,26 @@
 """The end effector tracked in the static rig's video and compared with forward kinematics.
 
-Detection: three-frame differencing (|I_t - I_t-1| and |I_t-1 - I_t-2| both above a threshold)
-plus morphology, in a window of each raw image around where forward kinematics puts the tool;
-the blob nearest the window's centre gives one pixel per image, and the pair is triangulated
-with the rig's model. The intersection of the two differences is the blob as it was in the
-MIDDLE frame, so a measurement belongs to time t-1, one frame back; the filter is corrected at
-that time and its estimate extrapolated to the current frame.
+Detection, with the tool's silhouettes (whole, undilated) rendered at the MEASURED joints in the
+left and right raw images: each silhouette is slid over its image, up to `max_shift_px` each
+way, to where its outline best matches the image's edges (correlation of smoothed gradients;
+the outline's sign follows the tool's contrast, so a dark tool on a pale wall and a pale one on
+a dark wall both match); the shift is refined to sub-pixel by a parabola through the peak. The
+tool's point seen is where forward kinematics projects it, moved by that image shift, in each
+image; the pair is triangulated with the rig's model. The silhouette only says what to look
+for: where the tool is comes from the images, so an encoder offset or a collision shows as a
+shift (a rendered flat-shaded tool differences into thin edge fragments, too little to measure).
+A match is accepted when the outline's mean grey step at the peak reaches `min_contrast_grey`
+(the tool hidden, or out of the picture, gives none). Measurements belong to the current frame.
+
+Without silhouettes: three-frame differencing (|I_t - I_t-1| and |I_t-1 - I_t-2| both above a
+threshold) plus morphology, in a window of each raw image around where forward kinematics puts
+the tool; the blob nearest the window's centre gives one pixel per image. The intersection of the
+two differences is the blob as it was in the MIDDLE frame, so a measurement belongs to time
+t-1, one frame back. Coarser (a blob's centroid is not the tool's centre); for textured tools.
 
 Filtering: OpenCV's Kalman filter with a constant-velocity model in the world (state x, y, z,
-vx, vy, vz), white acceleration as process noise, dt from the frame times.
+vx, vy, vz), white acceleration as process noise, dt from the frame times; corrected at the
+measurement's time and extrapolated to the current frame.
 
 A tool seen persistently (`disagreement_frames` measured frames in a row) farther than
 `disagreement_m` from where forward kinematics says it is means a collision or an encoder
@@ -45,14 +57,26 @@ class TrackerConfig:
     min_blob_px: int = integer(40, minimum=1)
     # Rows of the rectified pair differ by more than this: the two blobs are not one point.
     max_epipolar_px: float = positive(4.0)
-    measurement_noise_m: float = positive(0.005)
+    # Silhouette matching: how far (px) the tool may lie from its rendered silhouette, i.e. what
+    # an encoder offset or a collision can move it (40 px: 5 cm at 0.8 m with f = 640 px).
+    max_shift_px: int = integer(40, minimum=1)
+    # Gaussian smoothing (px) of both gradients: widens the match's peak for the sub-pixel fit.
+    edge_sigma_px: float = positive(1.0)
+    # Mean grey step across the outline at the match: rendered tools show 90-150 against the
+    # cell; sensor noise alone (2 grey levels) correlates to a few.
+    min_contrast_grey: float = positive(20.0)
+    # Silhouette matches scatter by ~1.5 mm at 0.8 m (0.2 px); blob centroids by ~5 mm.
+    measurement_noise_m: float = positive(0.002)
+    blob_measurement_noise_m: float = positive(0.005)
     # Standard deviation of the white acceleration of the constant-velocity model: a scanning
     # move changes speed by about 1 m/s within half a second.
     accel_noise_mps2: float = positive(2.0)
     initial_velocity_std_mps: float = positive(1.0)
     # Coasting longer than this without a measurement restarts the track at the next one.
     max_gap_s: float = positive(1.0)
-    disagreement_m: float = positive(0.03)
+    # 0.02 rad on joint 1 moves the tool 7-12 mm at the scanning reach; the track of a
+    # matched silhouette stays within 3 mm of the truth.
+    disagreement_m: float = positive(0.005)
     disagreement_frames: int = integer(3, minimum=1)
 
     def __post_init__(self) -> None:
@@ -129,6 +153,86 @@ def moving_blob(
     return best
 
 
+@dataclass(frozen=True)
+class SilhouetteMatch:
+    """Where a silhouette's outline best matches an image: shift_px (du, dv) from the rendered
+    silhouette to the image, and the outline's mean grey step there (grey levels; its sign is
+    the tool's: negative for a tool darker than its surroundings)."""
+
+    shift_px: tuple[float, float]
+    contrast_grey: float
+
+
+def _smoothed_gradients(image: np.ndarray, sigma_px: float) -> tuple[np.ndarray, np.ndarray]:
+    f = cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigma_px)
+    # Sobel's 3x3 kernel sums to 8 x the central difference: /8 keeps grey levels per pixel.
+    return (
+        cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3) / 8.0,
+        cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3) / 8.0,
+    )
+
+
+def _replicated(image: np.ndarray, y0: int, y1: int, x0: int, x1: int) -> np.ndarray:
+    """image[y0:y1, x0:x1] where the box may reach beyond the image: the border replicated."""
+    h, w = image.shape
+    cy0, cy1 = min(max(y0, 0), h - 1), max(min(y1, h), 1)
+    cx0, cx1 = min(max(x0, 0), w - 1), max(min(x1, w), 1)
+    return cv2.copyMakeBorder(
+        image[cy0:cy1, cx0:cx1],
+        cy0 - y0,
+        y1 - cy1,
+        cx0 - x0,
+        x1 - cx1,
+        cv2.BORDER_REPLICATE,
+    )
+
+
+def _parabola_peak(a: float, b: float, c: float) -> float:
+    """Offset (-0.5..0.5) of the extremum of the parabola through (-1, a), (0, b), (1, c)."""
+    den = a - 2.0 * b + c
+    return 0.0 if den == 0 else float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+
+
+def silhouette_shift(
+    image: np.ndarray,
+    silhouette: np.ndarray,
+    max_shift_px: int,
+    edge_sigma_px: float = 1.0,
+    min_area_px: int = 1,
+) -> SilhouetteMatch | None:
+    """The shift (within +-max_shift_px in u and v) that best lays the outline of `silhouette`
+    ((H, W) bool, the tool where the model puts it) on the edges of `image` ((H, W) grey):
+    the correlation of their smoothed gradients, strongest in either sign. None when the
+    silhouette has fewer than `min_area_px` pixels or reaches the image's border."""
+    ys, xs = np.nonzero(silhouette)
+    h, w = image.shape
+    if len(xs) < max(1, min_area_px):
+        return None
+    if xs.min() == 0 or ys.min() == 0 or xs.max() == w - 1 or ys.max() == h - 1:
+        # Cut by the picture's edge: the match would slide along the cut (10 mm off, measured).
+        return None
+    m = int(max_shift_px)
+    pad = int(math.ceil(3 * edge_sigma_px)) + 2
+    y0, y1, x0, x1 = ys.min() - pad, ys.max() + pad + 1, xs.min() - pad, xs.max() + pad + 1
+    template = _replicated(silhouette.astype(np.float32), y0, y1, x0, x1)
+    tgx, tgy = _smoothed_gradients(template, edge_sigma_px)
+    total = float((tgx * tgx + tgy * tgy).sum())
+    if total <= 0:
+        return None
+    wy0, wy1, wx0, wx1 = y0 - m, y1 + m, x0 - m, x1 + m
+    igx, igy = _smoothed_gradients(_replicated(image, wy0, wy1, wx0, wx1), edge_sigma_px)
+    score = cv2.matchTemplate(igx, tgx, cv2.TM_CCORR) + cv2.matchTemplate(igy, tgy, cv2.TM_CCORR)
+    magnitude = np.abs(score)
+    by, bx = np.unravel_index(int(np.argmax(magnitude)), magnitude.shape)
+    du, dv = float(bx - m), float(by - m)
+    if 0 < bx < magnitude.shape[1] - 1:
+        du += _parabola_peak(*magnitude[by, bx - 1 : bx + 2])
+    if 0 < by < magnitude.shape[0] - 1:
+        dv += _parabola_peak(*magnitude[by - 1 : by + 2, bx])
+    # The template's outline is a unit step: the score over its energy is the image's step.
+    return SilhouetteMatch((du, dv), float(score[by, bx]) / total)
+
+
 def _transition(dt: float) -> np.ndarray:
     F = np.eye(6, dtype=np.float32)
     F[:3, 3:] = dt * np.eye(3)
@@ -147,40 +251,60 @@ def _process_noise(dt: float, accel_std: float) -> np.ndarray:
 
 
 class EndEffectorTracker:
-    """Feed every frame in time order. The first measurement comes with the third frame."""
+    """Feed every frame in time order. With the tool's silhouettes the first measurement comes
+    with the first frame, without them with the third."""
 
     def __init__(self, rig: StereoRig, config: TrackerConfig | None = None) -> None:
         self.rig = rig
         self.config = config or TrackerConfig()
-        c = self.config
         self._kf = cv2.KalmanFilter(6, 3, 0, cv2.CV_32F)
         self._kf.measurementMatrix = np.hstack([np.eye(3), np.zeros((3, 3))]).astype(np.float32)
-        self._kf.measurementNoiseCov = (c.measurement_noise_m**2 * np.eye(3)).astype(np.float32)
         self._history: deque = deque(maxlen=3)
         self._t_filter: float | None = None
         self._over = 0
 
-    def _reset(self, p_W: np.ndarray, t_s: float) -> None:
+    def _reset(self, p_W: np.ndarray, t_s: float, noise_m: float) -> None:
         c = self.config
         self._kf.statePost = np.concatenate([p_W, np.zeros(3)]).astype(np.float32).reshape(6, 1)
-        cov = [c.measurement_noise_m**2] * 3 + [c.initial_velocity_std_mps**2] * 3
+        cov = [noise_m**2] * 3 + [c.initial_velocity_std_mps**2] * 3
         self._kf.errorCovPost = np.diag(cov).astype(np.float32)
         self._t_filter = t_s
 
-    def _measure(self) -> np.ndarray | None:
-        """The tool's world point at the middle frame's time, from the last three frames."""
-        (_, l0, r0, _, _), (_, l1, r1, fk1, mask1), (_, l2, r2, _, _) = self._history
-        uv_left, uv_right, depth = project_W(self.rig, fk1)
-        if depth[0] <= 0:
-            return None
-        blob_l = moving_blob((l0, l1, l2), uv_left[0], self.config, mask1)
-        blob_r = moving_blob((r0, r1, r2), uv_right[0], self.config)
-        if blob_l is None or blob_r is None:
-            return None
-        tri = triangulate_W(self.rig, np.array(blob_l.centroid_px), np.array(blob_r.centroid_px))
+    def _triangulated(self, uv_left: np.ndarray, uv_right: np.ndarray) -> np.ndarray | None:
+        tri = triangulate_W(self.rig, uv_left, uv_right)
         if tri.epipolar_error_px > self.config.max_epipolar_px or tri.disparity_px <= 0:
             return None
         return tri.p_W
+
+    def _measure_blobs(self) -> np.ndarray | None:
+        """The tool's world point at the middle frame's time, from the last three frames."""
+        (_, l0, r0, _, _), (_, l1, r1, fk1, _), (_, l2, r2, _, _) = self._history
+        uv_left, uv_right, depth = project_W(self.rig, fk1)
+        if depth[0] <= 0:
+            return None
+        blob_l = moving_blob((l0, l1, l2), uv_left[0], self.config)
+        blob_r = moving_blob((r0, r1, r2), uv_right[0], self.config)
+        if blob_l is None or blob_r is None:
+            return None
+        return self._triangulated(np.array(blob_l.centroid_px), np.array(blob_r.centroid_px))
+
+    def _measure_silhouettes(self) -> np.ndarray | None:
+        """The tool's world point at the current frame's time: forward kinematics' pixel of the
+        tracked point moved, in each image, by the shift that lays the tool's silhouette on it."""
+        c = self.config
+        _, left, right, predicted_W, masks = self._history[-1]
+        uv_left, uv_right, depth = project_W(self.rig, predicted_W)
+        if depth[0] <= 0:
+            return None
+        seen = []
+        for image, mask in zip((left, right), masks, strict=True):
+            match = silhouette_shift(
+                image, mask, c.max_shift_px, c.edge_sigma_px, min_area_px=c.min_blob_px
+            )
+            if match is None or abs(match.contrast_grey) < c.min_contrast_grey:
+                return None
+            seen.append(np.array(match.shift_px))
+        return self._triangulated(uv_left[0] + seen[0], uv_right[0] + seen[1])
 
     def update(
         self,
@@ -188,12 +312,13 @@ class EndEffectorTracker:
         right: np.ndarray,
         t_s: float,
         predicted_W: np.ndarray,
-        tool_mask: np.ndarray | None = None,
+        tool_masks: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> TrackEstimate:
         """One frame: raw grey uint8 left/right images, the frame time (s), the tracked point
-        where forward kinematics puts it at the measured joints (3,) in W (the tool's centre as
-        the camera sees it, e.g. the centre of the camera tool), and optionally the tool's
-        silhouette in the left image (bool) to keep other moving links out of the blob."""
+        where forward kinematics puts it at the measured joints (3,) in W (the centre of the
+        camera tool's body), and optionally the tool's whole silhouettes (bool, undilated) at
+        the measured joints in the left and right images: then the tool is found by matching
+        them (see the module docstring), else by three-frame differencing."""
         c = self.config
         predicted_W = np.asarray(predicted_W, float).reshape(3)
         if not np.all(np.isfinite(predicted_W)):
@@ -204,24 +329,31 @@ class EndEffectorTracker:
             )
         if left.shape != right.shape or left.ndim != 2 or left.dtype != np.uint8:
             raise ScannerError("tracker: left and right must be grey uint8 images of one size")
-        mask = None if tool_mask is None else np.asarray(tool_mask, bool)
-        self._history.append((float(t_s), left.copy(), right.copy(), predicted_W, mask))
+        masks = None
+        if tool_masks is not None:
+            masks = tuple(np.asarray(m, bool) for m in tool_masks)
+            if len(masks) != 2 or any(m.shape != left.shape for m in masks):
+                raise ScannerError("tracker: tool_masks must be a left and a right image mask")
+        self._history.append((float(t_s), left.copy(), right.copy(), predicted_W, masks))
 
-        measured = False
-        if len(self._history) == 3:
-            t_mid = self._history[1][0]
-            p_meas = self._measure()
-            if p_meas is not None:
-                measured = True
-                if self._t_filter is None or t_mid - self._t_filter > c.max_gap_s:
-                    self._reset(p_meas, t_mid)
-                else:
-                    dt = t_mid - self._t_filter
-                    self._kf.transitionMatrix = _transition(dt)
-                    self._kf.processNoiseCov = _process_noise(dt, c.accel_noise_mps2)
-                    self._kf.predict()
-                    self._kf.correct(p_meas.astype(np.float32).reshape(3, 1))
-                    self._t_filter = t_mid
+        p_meas, t_meas, noise = None, float(t_s), c.measurement_noise_m
+        if masks is not None:
+            p_meas = self._measure_silhouettes()
+        elif len(self._history) == 3:
+            p_meas, t_meas = self._measure_blobs(), self._history[1][0]
+            noise = c.blob_measurement_noise_m
+        measured = p_meas is not None
+        if measured:
+            self._kf.measurementNoiseCov = (noise**2 * np.eye(3)).astype(np.float32)
+            if self._t_filter is None or t_meas - self._t_filter > c.max_gap_s:
+                self._reset(p_meas, t_meas, noise)
+            else:
+                dt = t_meas - self._t_filter
+                self._kf.transitionMatrix = _transition(dt)
+                self._kf.processNoiseCov = _process_noise(dt, c.accel_noise_mps2)
+                self._kf.predict()
+                self._kf.correct(p_meas.astype(np.float32).reshape(3, 1))
+                self._t_filter = t_meas
         if self._t_filter is None or t_s - self._t_filter > c.max_gap_s:
             # No track yet, or lost: extrapolating a stale velocity would invent positions.
             return TrackEstimate(t_s, None, None, measured, None, False)
