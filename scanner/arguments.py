@@ -83,6 +83,22 @@ def positive_float(text: str) -> float:
     return v
 
 
+def seconds_list(text: str) -> tuple[float, ...]:
+    """Comma-separated times in seconds, each finite and >= 0."""
+    values = []
+    for part in text.split(","):
+        try:
+            v = float(part)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected seconds such as 4,12.5, got '{text}'"
+            ) from None
+        if not (math.isfinite(v) and v >= 0):
+            raise argparse.ArgumentTypeError(f"expected times >= 0 s, got {part.strip()}")
+        values.append(v)
+    return tuple(values)
+
+
 def worker_count(text: str) -> int:
     try:
         v = int(text)

@@ -19,12 +19,14 @@ from scanner.arguments import (
     name_arg,
     path_arg,
     positive_float,
+    seconds_list,
     show_formats,
     worker_count,
 )
 from scanner.calibrate.arguments import add_calibrate_parser
 from scanner.exchange import add_export_parser, add_import_parser
 from scanner.inspect_command import add_inspect_parser
+from scanner.monitor.command import add_monitor_parser
 
 BUILTIN_HELP = "vase, bracket, pebble"
 # Where scan's flags take their defaults from when neither they nor --config give a value.
@@ -49,6 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_parser(sub)
     add_import_parser(sub)
     add_inspect_parser(sub)
+    add_monitor_parser(sub)
     return parser
 
 
@@ -120,6 +123,19 @@ def _add_scan_parser(sub) -> None:
         "hardware the operator is asked), aligned and merged into one model "
         "(default %(config_default)s)",
         config=ConfigDefault(SCAN_CONFIG, "hangings"),
+    )
+    scan.add_argument(
+        "--monitor",
+        action="store_true",
+        help="watch the cell with the static stereo camera while scanning: an intrusion stops "
+        "the arm and holds captures until the cell is clear (default: off, or monitor.enabled)",
+    )
+    scan.add_argument(
+        "--intruder",
+        type=seconds_list,
+        metavar="SECONDS[,SECONDS...]",
+        help="simulation with --monitor: a forearm reaches into the cell at these times (s on "
+        "the monitor's clock) (default: none)",
     )
     scan.add_argument(
         "--config",
@@ -318,6 +334,8 @@ def _scan(args: argparse.Namespace) -> int:
         driver=args.driver,
         hangings=args.hangings,
         max_extra_views=args.max_extra_views,
+        monitor=args.monitor or None,
+        intruder_start_s=args.intruder,
     )
     if args.plan_only and (args.resume is not None or args.meshcat):
         raise ScannerError("--plan-only plans a new scan: do not give --resume or --meshcat")
@@ -492,6 +510,10 @@ def _run(args: argparse.Namespace) -> int:
         from scanner.exchange import run_export
 
         return run_export(args)
+    if args.command == "monitor":
+        from scanner.monitor.command import run_monitor_command
+
+        return run_monitor_command(args)
     if args.command == "inspect":
         from scanner.inspect_command import run_inspect_command
 

@@ -21,6 +21,7 @@ from reconstruction.yaml_files import read_yaml
 from robots.truth import ErrorModel
 from robots.workcell import WorkcellConfig
 from scanner.arguments import for_flag
+from scanner.monitor.cell_monitor import MonitorSettings
 from scanner.typed_yaml import from_dict, load_yaml_file, to_dict
 from scanner.viewpoints import ViewpointConfig
 
@@ -94,6 +95,8 @@ class ScanConfig:
     # Passes over the object, re-hung (turned) between them; the passes are aligned and merged
     # into one model. One hanging never sees the top of a hung object.
     hangings: int = integer(1, maximum=MAX_HANGINGS)
+    # The static-camera cell monitor (off by default): intrusions pause the scan.
+    monitor: MonitorSettings = field(default_factory=MonitorSettings)
 
     def __post_init__(self) -> None:
         check_fields("scan", self)
@@ -142,6 +145,8 @@ def with_overrides(
     driver: str | None = None,
     hangings: int | None = None,
     max_extra_views: int | None = None,
+    monitor: bool | None = None,
+    intruder_start_s: tuple[float, ...] | None = None,
 ) -> ScanConfig:
     """Command-line flags win over the file; each override is validated like the file, and
     an error names the flag."""
@@ -172,4 +177,11 @@ def with_overrides(
         config = replace(config, views=views_config)
     if hangings is not None:
         config = for_flag("--hangings", lambda: replace(config, hangings=hangings))
+    if monitor:
+        config = replace(config, monitor=replace(config.monitor, enabled=True))
+    if intruder_start_s is not None:
+        settings = for_flag(
+            "--intruder", lambda: replace(config.monitor, intruder_start_s=intruder_start_s)
+        )
+        config = replace(config, monitor=settings)
     return config

@@ -25,6 +25,8 @@ from scanner.captures import CaptureStore, atomic_write_text, require_same_setti
 from scanner.config import ScanConfig, scan_config_to_dict
 from scanner.decision import DecisionMaker, FixedViewList, RunSummary
 from scanner.manifest import SavedScan, new_manifest, open_scan, views_to_manifest
+from scanner.monitor.cell_monitor import MonitorStoppedError
+from scanner.monitor.scan_monitor import ScanMonitor
 from scanner.next_best_view import CoverageModel
 from scanner.reconstruct import holds_reconstruction, run_reconstruct
 from scanner.report import write_summary
@@ -142,14 +144,18 @@ def _decision_maker(
     tour: Tour,
     live,
     stream: ViewStream | None = None,
+    monitor: ScanMonitor | None = None,
 ) -> DecisionMaker:
     ordered = [todo[k] for k in tour.order]
     preferred = {todo[k].index: tour.option[k] for k in range(len(todo))}
     robot = WatchedRobot(world.robot, live, world.joint_offsets_rad) if live else world.robot
+    camera = world.camera
+    if monitor is not None:
+        robot, camera = monitor.drivers(robot, camera, world.planner.plan)
     return DecisionMaker(
         world.planner,
         robot,
-        world.camera,
+        camera,
         store,
         FixedViewList(ordered, preferred),
         len(views),
@@ -236,6 +242,8 @@ def run_scan(
 
     def report() -> dict:
         out = _scan_report(config, store, summary, run.tour_cost_s, len(views), timer, wall0)
+        if run.monitor is not None:
+            out["monitor"] = run.monitor.report()
         if streamed is not None:
             seconds = streamed.processing_s()
             out["processing_s"] = sum(seconds.values())
@@ -269,6 +277,7 @@ class _PassRunner:
         self.tour_cost_s = 0.0
         self.machine: DecisionMaker | None = None
         self.abort_requested = False
+        self.monitor = ScanMonitor(config.monitor) if config.monitor.enabled else None
 
     def request_abort(self) -> None:
         self.abort_requested = True
@@ -284,6 +293,9 @@ class _PassRunner:
                     self.world = self.world.rehang(hanging, len(hangings), self.viewer)
                 self.store.update_manifest(hanging=hanging)
                 log.info("re-hung the object for hanging %d of %d", hanging + 1, len(hangings))
+            if self.monitor is not None:
+                with self.timer("monitor_start"):
+                    self.monitor.start(self.world)
             summaries.append(self._one_pass(set(self.hangings[hanging])))
             if self._aborted(summaries):
                 break
@@ -355,8 +367,22 @@ class _PassRunner:
         with self.timer("ordering"):
             tour = plan_tour(robot.joint_positions(), todo, self.world.planner.estimate_duration_s)
         self.tour_cost_s += tour.cost_s
+        if self.monitor is not None and not self.monitor.checked:
+            # Every hanging repeats about this tour; each capture waits capture_dwell_s.
+            passes = len(self.hangings)
+            rests = len(self.views) * self.config.monitor.capture_dwell_s
+            self.monitor.check_intruders(self.monitor.clock_s + passes * tour.cost_s + rests)
+            self.monitor.checked = True
         machine = _decision_maker(
-            self.config, self.world, self.store, self.views, todo, tour, self.live, self.stream
+            self.config,
+            self.world,
+            self.store,
+            self.views,
+            todo,
+            tour,
+            self.live,
+            self.stream,
+            self.monitor,
         )
         self.machine = machine
         if self.abort_requested:
@@ -390,6 +416,13 @@ def _run_machine(machine: DecisionMaker, store: CaptureStore) -> RunSummary:
     capture made so far, and says how to continue."""
     try:
         return machine.run()
+    except MonitorStoppedError as e:
+        with suppress(OSError):
+            store.update_manifest(status="interrupted")
+        raise MonitorStoppedError(
+            f"{e}; the {len(store.captured_indices())} captures so far are kept; continue "
+            f"with: scanner scan --resume {store.root}"
+        ) from None
     except StorageError as e:
         # On a full disk the manifest may keep "running", which resumes the same way.
         with suppress(OSError):
