@@ -129,9 +129,12 @@ class ScanMonitor:
         return out
 
     def _tracking(self) -> dict:
-        rows = [r for m in self.monitors for r in m.track if r[3]]  # while the arm moved
+        moving = [r for m in self.monitors for r in m.track if r[3]]
+        # Frames with a measurement of the tool: the filter coasting while the tool is out
+        # of view or hidden is not tracking (the share tracked is reported beside).
+        rows = [r for r in moving if r[0].measured]
         if not rows:
-            return {}
+            return {"ee_tracked_fraction": 0.0} if moving else {}
         estimates = [r[0] for r in rows]
         p_true = np.array([r[1] for r in rows])
         t = np.array([e.t_s for e in estimates])
@@ -145,6 +148,7 @@ class ScanMonitor:
             "ee_tracking_max_mm": 1e3 * errors.max_position_m,
             "ee_velocity_rms_mm_s": 1e3 * errors.rms_velocity_mps,
             "ee_tracked_frames": errors.frames,
+            "ee_tracked_fraction": errors.frames / len(moving),
         }
 
 
