@@ -268,11 +268,9 @@ def ball_pivoting_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMe
     return finish_mesh("ball_pivoting", mesh, config)
 
 
-def rbf_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
-    """The RBF implicit surface of the fused cloud where the data are, coloured by the
-    nearest fused point."""
-    fused = inputs.fused
-    params = RbfParams(
+def rbf_params(config: SurfaceConfig) -> RbfParams:
+    """The RBF surface's settings (`surfaces.rbf_*`)."""
+    return RbfParams(
         centre_spacing_m=config.rbf_centre_spacing_m,
         max_centres=config.rbf_max_centres,
         offset_m=config.rbf_offset_m,
@@ -282,7 +280,13 @@ def rbf_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
         voxel_size_m=config.rbf_voxel_size_m,
         max_distance_m=config.rbf_max_distance_m,
     )
-    surface = rbf_surface(fused.points_W, fused.normals_W, params)
+
+
+def rbf_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
+    """The RBF implicit surface of the fused cloud where the data are, coloured by the
+    nearest fused point."""
+    fused = inputs.fused
+    surface = rbf_surface(fused.points_W, fused.normals_W, rbf_params(config))
     mesh = o3d.geometry.TriangleMesh(
         o3d.utility.Vector3dVector(surface.vertices),
         o3d.utility.Vector3iVector(surface.triangles.astype(np.int32)),

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from reconstruction.errors import ScannerError
 from reconstruction.surface_rbf import RbfParams, rbf_surface
-from reconstruction.surfaces import FusedCloud, SurfaceConfig, build_surface
+from reconstruction.surfaces import FusedCloud, SurfaceConfig, build_surface, rbf_params
 
 RADIUS_M = 0.05
 # The cap z >= 0.5 R of the sphere (a third of its height; area pi R^2 = 79 cm^2): what one side
@@ -21,16 +21,7 @@ CONFIG = SurfaceConfig(methods=("rbf",))
 
 
 def _params(config: SurfaceConfig = CONFIG) -> RbfParams:
-    return RbfParams(
-        centre_spacing_m=config.rbf_centre_spacing_m,
-        max_centres=config.rbf_max_centres,
-        offset_m=config.rbf_offset_m,
-        kernel=config.rbf_kernel,
-        neighbors=config.rbf_neighbors,
-        smoothing=config.rbf_smoothing,
-        voxel_size_m=config.rbf_voxel_size_m,
-        max_distance_m=config.rbf_max_distance_m,
-    )
+    return rbf_params(config)
 
 
 def _cap_cloud(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

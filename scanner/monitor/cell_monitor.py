@@ -178,11 +178,11 @@ class CellMonitor:
 
     def watch_motion(self, trajectory) -> float | None:
         """Frames along `trajectory` until an intrusion: its time relative to the trajectory's
-        start (the clock then stands at that frame), or None (the clock at the end)."""
+        start (the clock then stands at the next frame), or None (the clock at the end)."""
         t0 = self.video.clock_s
         for frame in self.video.frames_along(trajectory, t0):
             if self.process(frame, moving=True).intrusion:
-                self.video.clock_s = frame.t_s
+                self.video.clock_s = frame.t_s + 1.0 / self.fps
                 return frame.t_s - t0
         return None
 
