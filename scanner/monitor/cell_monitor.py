@@ -77,6 +77,22 @@ class MonitorStoppedError(ScannerError):
     exit_code = 1
 
 
+def volume_in_view(rig: StereoRig, detection: MonitorConfig, margin_px: float = 2.0) -> float:
+    """The share of the monitored volume (a 9 x 9 x 9 grid of it) both cameras see: an
+    intruder in the rest is never detected."""
+    from scanner.monitor.stereo_point import project_W
+
+    lo, hi = np.array(detection.volume_min_m), np.array(detection.volume_max_m)
+    grid = np.stack(np.meshgrid(*[np.linspace(0.0, 1.0, 9)] * 3, indexing="ij"), -1)
+    points = lo + grid.reshape(-1, 3) * (hi - lo)
+    uv_left, uv_right, depth = project_W(rig, points)
+    w, h = rig.image_size
+    seen = depth > 0
+    for uv in (uv_left, uv_right):
+        seen &= np.all((uv >= margin_px) & (uv <= np.array([w, h]) - 1 - margin_px), axis=1)
+    return float(seen.mean())
+
+
 # The tracked point: the centre of the camera tool's body, in the flange frame F.
 TOOL_CENTRE_F = np.array(tool_visual_boxes()[1].p_FB, float)
 
@@ -91,6 +107,13 @@ class CellMonitor:
         self.settings = settings
         self.X_WF = X_WF
         rig = StereoRig.create(video.stereo, video.X_WS)
+        self.volume_in_view = volume_in_view(rig, settings.detection)
+        if self.volume_in_view < 1.0:
+            log.warning(
+                "only %.0f %% of the monitored volume is in the static camera's view: "
+                "intruders elsewhere in it are not seen (monitor.camera, monitor.detection)",
+                100 * self.volume_in_view,
+            )
         self.detector = IntrusionDetector(rig, settings.detection)
         self.tracker = EndEffectorTracker(rig, settings.tracking)
         self.events: list[MonitorEvent] = []

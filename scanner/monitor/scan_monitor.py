@@ -22,11 +22,13 @@ MATCH_WINDOW_S = 0.5
 
 class ScanMonitor:
     def __init__(self, settings: MonitorSettings) -> None:
-        from robots.cell_video import default_intruder_paths
+        from robots.cell_video import CellVolume, default_intruder_paths
 
         self.settings = settings
+        d = settings.detection
+        self.volume = CellVolume(d.volume_min_m, d.volume_max_m)
         self.paths = default_intruder_paths(
-            settings.intruder_start_s, settings.intruder_seed, settings.camera
+            settings.intruder_start_s, settings.intruder_seed, settings.camera, self.volume
         )
         self.kinematics = Kinematics()
         self.monitors: list[CellMonitor] = []
@@ -85,6 +87,7 @@ class ScanMonitor:
             "max_lag_s": max((m.max_lag_seen_s for m in self.monitors), default=0.0),
             "video_s": self.clock_s,
             "pauses": sum(r.pauses for r in self.robots),
+            "volume_in_view": min((m.volume_in_view for m in self.monitors), default=None),
             "events": events,
         }
         out.update(self._truth_figures(events))
