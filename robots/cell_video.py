@@ -9,7 +9,8 @@ occludes and is occluded like any other geometry.
 Interface (SI units; times in seconds on the video's simulated clock; W = robot base frame):
 
 - `CellVolume(lo_m, hi_m)`: the monitored volume, an axis-aligned box in W.
-  `MONITORED_VOLUME` is the default: the cell in front of the fence, above the table.
+  `MONITORED_VOLUME` is the default: the largest box around the arm's working space under the
+  hung object that both cameras of the default static rig see whole.
 - `IntruderPath(start_s, entry_m, stop_m, speed_m_s, dwell_s, radius_m, length_m, volume)`:
   a forearm, a cylinder whose axis points along its motion. At `start_s` its centroid is at
   `entry_m` (the whole cylinder outside `volume`); it moves in a straight line at `speed_m_s`
@@ -152,9 +153,13 @@ class CellVolume:
         return True
 
 
-# The cell a person must not reach into: above the table top (z = 0), in front of the fence
-# (x = -0.75 m) and within the table's and radiator's extent (robots/workcell.py).
-MONITORED_VOLUME = CellVolume((-0.5, -0.6, 0.0), (0.85, 0.6, 1.6))
+# The space a person must not reach into while the arm scans: the largest box the default
+# static rig (StaticCameraConfig) sees whole, both cameras, 2 px inside their images with the
+# lens distortion, that holds the arm's working space under the hung object (x -0.15..0.45,
+# y -0.22..0.18, z 0.25..0.68 m) and stays over the table (x >= -0.5 m, robots/workcell.py).
+# Found by growing boxes face by face against the rig's projection, rounded inward to 1 cm.
+# A box beyond the rig's view would count intruders no camera can see.
+MONITORED_VOLUME = CellVolume((-0.50, -0.31, 0.19), (0.45, 0.24, 0.76))
 
 
 def _point3(value, name: str) -> tuple[float, float, float]:
@@ -310,6 +315,20 @@ def _forearm_surface_W(p_W: np.ndarray, axis_W: np.ndarray, radius: float, lengt
 # within 25 px of either image (the samples are up to ~20 px apart on a near forearm).
 _STOP_MARGIN_PX = 10.0
 _ENTRY_MARGIN_PX = -25.0
+# When its axis reaches the monitored volume, the forearm's front this long is in both images:
+# a monitor sees it come (at 1.6 m, 0.15 m of a 90 mm forearm is ~2000 px, above the
+# detector's smallest candidate), not a hand appearing out of nowhere inside the volume.
+_SEEN_AT_ENTRY_M = 0.15
+
+
+def _entering_s(volume: CellVolume, entry: np.ndarray, d: np.ndarray, length: float) -> float:
+    """How far (m) a forearm starting at centroid `entry` moves along d before its axis meets
+    the volume (inf if it never does within 3 m)."""
+    for s in np.arange(0.0, 3.0, 0.005):
+        c = entry + s * d
+        if volume.meets_segment(c - 0.5 * length * d, c + 0.5 * length * d):
+            return float(s)
+    return math.inf
 
 
 def _sample_path(
@@ -347,6 +366,10 @@ def _sample_path(
         if view.seen(_forearm_surface_W(entry, d, radius, length), _ENTRY_MARGIN_PX).any():
             continue
         if view.camera_distance_m(entry, stop) < 0.3:
+            return None
+        tip = entry + (_entering_s(volume, entry, d, length) + 0.5 * length) * d
+        front = tip - 0.5 * _SEEN_AT_ENTRY_M * d
+        if not view.seen(_forearm_surface_W(front, d, radius, _SEEN_AT_ENTRY_M), 0.0).all():
             return None
         return IntruderPath(
             start_s=float(start_s),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -29,7 +30,8 @@ FPS = 15.0
 
 @pytest.fixture(scope="module")
 def paths():
-    return default_intruder_paths([0.5, 4.0], seed=5)
+    # Far enough apart that the first has gone before the second comes.
+    return default_intruder_paths([0.5, 8.0], seed=5)
 
 
 @pytest.fixture(scope="module")
@@ -83,7 +85,9 @@ def test_intruder_appears_where_its_path_projects_only_while_present(video, path
             changed = _changed(
                 seen.right if right else seen.left, empty.right if right else empty.left
             )
-            assert changed.sum() > 500  # a 90 mm forearm ~1 m away spans thousands of pixels
+            # A 90 mm forearm 0.6-1.7 m away: hundreds to thousands of pixels, fewer when it
+            # points at the camera or the arm hides some of it.
+            assert changed.sum() > 500
             # The changed pixels lie along the projected axis, within the projected radius
             # (+ 3 px for the 0.5 px rendering offsets and the ends' perspective).
             band_px = _axis_distance_px(video, path, t_stop, right, np.argwhere(changed))
@@ -91,7 +95,10 @@ def test_intruder_appears_where_its_path_projects_only_while_present(video, path
         truth_mask = video.intruder_mask(t_stop, q_true)
         left_changed = _changed(seen.left, empty.left)
         assert left_changed[truth_mask].mean() > 0.5
-        assert truth_mask[left_changed].mean() > 0.95
+        # The label render has no anti-aliasing: the grey edge pixels around the silhouette
+        # change too (~5 % of a small forearm 1.6 m away), within 1 px of the truth mask.
+        truth_edge = cv2.dilate(truth_mask.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        assert truth_edge[left_changed].mean() > 0.99
     # Before it enters and after it has left the picture is the empty cell (noise only).
     for t_s in (paths[0].start_s - 0.2, paths[0].end_s + 0.1):
         if any(p.position_W(t_s) is not None for p in paths):

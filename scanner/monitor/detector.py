@@ -24,6 +24,7 @@ import numpy as np
 from reconstruction.checks import check_fields, fraction, integer, non_negative, positive
 from reconstruction.errors import ScannerError
 from reconstruction.stereo.rectification import rectify_pair
+from robots.cell_video import MONITORED_VOLUME
 from scanner.monitor.stereo_point import StereoRig, disparity_range, lift_rectified_W
 
 
@@ -46,7 +47,8 @@ def _check_box(section: str, lo, hi) -> None:
 class MonitorConfig:
     """Settings of the cell monitor. Pixel sizes are in full-resolution pixels of the left
     image; grey levels are 8-bit. The monitored volume is an axis-aligned world box (m); the
-    default covers the RX60's table and the space above it up to the hung object's rod."""
+    default is the arm's working space under the hung object, all of it in the default rig's
+    view (an intruder where no camera sees cannot be detected)."""
 
     fps: float = positive(15.0)
     # Half resolution averages 4 pixels: sensor noise drops by 2 and the per-frame cost by 4,
@@ -65,10 +67,9 @@ class MonitorConfig:
     settle_frames: int = integer(20, minimum=0)
     morph_kernel_px: int = integer(5, minimum=1)
     mask_margin_px: int = integer(8, minimum=0)
-    # The cell in front of the fence (x = -0.75 m), above the table top (z = 0) and within the
-    # table's and radiator's extent (robots/workcell.py).
-    volume_min_m: tuple[float, float, float] = (-0.5, -0.6, 0.0)
-    volume_max_m: tuple[float, float, float] = (0.85, 0.6, 1.6)
+    # The box the default static rig sees whole (robots.cell_video.MONITORED_VOLUME).
+    volume_min_m: tuple[float, float, float] = MONITORED_VOLUME.lo_m
+    volume_max_m: tuple[float, float, float] = MONITORED_VOLUME.hi_m
     # Nearest depth searched by the stereo match (corners closer to the rig count as this).
     min_depth_m: float = positive(0.3)
     # Depth is matched at 1/stereo_downscale resolution: at 1 m a 2 px disparity step of the
