@@ -20,6 +20,7 @@ from robots.kinematics import Kinematics
 from robots.workcell import keep_out_radius_m
 from scanner.config import ScanConfig
 from scanner.decision import FixedViewList
+from scanner.plan_records import PlannedViewpoint, ScanPlan
 from scanner.results_folder import holds_result, staged_folder
 from scanner.sampling import fibonacci_directions
 from scanner.viewpoints import PlannedView, ViewpointConfig
@@ -27,62 +28,6 @@ from scanner.world import ScanWorld, setup_world
 
 PLAN_FILE = "plan.json"  # written last: its presence marks a finished plan folder
 PICTURE_FILE = "plan.png"
-
-# Why a viewpoint is not reached. The first three are decided before the tour (the view is
-# dropped), the others are the planner's PlanFailure reasons for the move to the view.
-UNREACHABLE_REASONS = (
-    "no_ik_solution",
-    "in_collision",
-    "too_few_reachable_directions",
-    "start_invalid",
-    "goal_invalid",
-    "no_path",
-    "validation_failed",
-)
-
-
-@dataclass(frozen=True, eq=False)
-class PlannedViewpoint:
-    """One viewpoint of the plan.
-
-    index: the scan's view index (None for a view dropped before the scan numbers its views).
-    order: position in the visiting order, 1 = first (None: never visited).
-    X_WC: camera pose (m): where the capture would be taken when reachable, else the pose
-    asked for (zero roll); None when not even a direction exists.
-    q_rad: the joint configuration the move ends at (None when unreachable).
-    reason: "" when reachable, else one of UNREACHABLE_REASONS; detail: for humans.
-    motion_s: duration of the time-parameterised move to this view (s).
-    """
-
-    index: int | None
-    hanging: int
-    order: int | None
-    direction: np.ndarray | None
-    X_WC: np.ndarray | None
-    q_rad: np.ndarray | None
-    reachable: bool
-    reason: str = ""
-    detail: str = ""
-    motion_s: float = 0.0
-
-
-@dataclass(frozen=True, eq=False)
-class ScanPlan:
-    viewpoints: tuple[PlannedViewpoint, ...]
-    scan_center_m: np.ndarray
-    keep_out_radius_m: float
-    hangings: int
-    extra_views_not_planned: int  # next-best views per hanging: they depend on the captures
-
-    @property
-    def robot_time_s(self) -> float:
-        """Summed durations of the moves, what the scan reports as robot_motion_s."""
-        return float(sum(v.motion_s for v in self.viewpoints))
-
-    @property
-    def reachable_count(self) -> int:
-        return sum(v.reachable for v in self.viewpoints)
-
 
 def _rolls_rad(config: ViewpointConfig) -> np.ndarray:
     """The set of camera rolls the view generator tries (its order does not matter here)."""

@@ -14,7 +14,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
 
 from robots.workcell import WorkcellConfig
-from scanner.plan_only import ScanPlan
+from scanner.plan_records import ScanPlan
 
 REACHABLE_COLOUR = "tab:green"
 UNREACHABLE_COLOUR = "tab:red"
