@@ -356,6 +356,10 @@ def _sample_path(
         d = np.array([c * d[0] - s * d[1], s * d[0] + c * d[1], -math.tan(rng.uniform(0, 0.4))])
     d /= np.linalg.norm(d)
     length, radius = FOREARM_LENGTH_M, FOREARM_RADIUS_M
+    # The hand reaches into the volume and stays there: a forearm crossing the whole box would
+    # stop with its hand out beyond it.
+    if not volume.contains(stop + 0.5 * length * d):
+        return None
     if not view.seen(_forearm_surface_W(stop, d, radius, length), _STOP_MARGIN_PX).all():
         return None
     for back_m in np.arange(0.3, 2.5, 0.05):

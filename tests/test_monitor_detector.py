@@ -161,6 +161,7 @@ def test_update_runs_well_above_the_frame_rate(scene):
         ("volume_max_m", (0.0, 0.0)),
         ("volume_max_m", (-1.0, 1.0, 1.0)),
         ("min_inside_fraction", 1.5),
+        ("approach_margin_m", -0.1),
     ],
 )
 def test_bad_config_names_the_field(field, value):
@@ -217,12 +218,15 @@ def test_rendered_cell_forearm_detected_and_moving_robot_ignored(cell_run):
     # and after it has gone.
     assert not any(d.intrusion for d, s in zip(detections, in_scene, strict=True) if not s)
     first_present = present.index(True)
+    last_present = len(present) - 1 - present[::-1].index(True)
     first = next(k for k, d in enumerate(detections) if d.intrusion)
-    # 'present' counts the forearm's axis inside the volume; it enters the image at the bottom
-    # edge a few frames later (the default path comes from the camera's side).
-    assert first_present <= first <= first_present + 5
-    flagged = [d.intrusion for d, p in zip(detections, present, strict=True) if p]
-    assert np.mean(flagged) > 0.75
+    # 'present' counts the forearm's axis inside the volume; the default path is seen coming
+    # before it gets there. The detector counts points within approach_margin_m (0.1 m) of the
+    # box: it may flag the frame before the axis arrives (0.05-0.07 m a frame at 0.7-1 m/s),
+    # and must flag within 2 frames (133 ms, under the 200 ms the monitor is held to).
+    assert first_present - 1 <= first <= first_present + 2
+    # Flagged on every frame while some of it is in the volume, its hand alone included.
+    assert all(d.intrusion for d in detections[first : last_present + 1])
     # The first intrusion stops the scan; the cell is clear again only after it has gone.
     last = max(k for k, d in enumerate(detections) if d.intrusion)
     assert not any(d.cell_clear for d in detections[first : last + 1])

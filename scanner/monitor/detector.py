@@ -6,8 +6,9 @@ threshold; it catches fast motion the background model is slow to flag). The rob
 rendered from its geometry at the measured joints, and the hung object's are removed before
 anything is decided, and the background model never learns from them. What is left, cleaned by
 morphology, is a candidate if its connected component is large enough; it is an intrusion when
-the stereo pair puts it inside the monitored volume (a world-frame box), so a moving shadow on
-the far wall or a person walking behind the fence does not stop the scan.
+the stereo pair puts it inside the monitored volume (a world-frame box, counted with a
+protective margin `approach_margin_m` around it), so a moving shadow on the far wall or a person
+walking behind the fence does not stop the scan.
 
 All image work runs on a downscaled left image (`downscale`); depth is matched at full
 resolution in the rectified pair, and only for candidates.
@@ -79,9 +80,20 @@ class MonitorConfig:
     # Fewer of a component's pixels matched than this: its depth is unknown (not confirmed).
     min_valid_fraction: float = fraction(0.1)
     min_inside_fraction: float = fraction(0.3)
+    # A point counts as in the volume within this of the box (the protective separation of
+    # ISO 13855): a hand at 1.6 m/s covers 0.107 m in a frame period at 15 fps, so an intruder
+    # whose axis reaches the box between two frames (or before a capture the next frame would
+    # have stopped) is already flagged on the frame before, and one whose hand alone pokes into
+    # the box, the rest of it outside, is flagged by its points near the box.
+    approach_margin_m: float = non_negative(0.1)
     # Pixels of a confirmed intrusion are not learnt by the background model (dilated by this,
     # for the motion until the next frame): a person standing still stays an intrusion.
     hold_margin_px: int = integer(16, minimum=0)
+    # A confirmed intruder that is no longer a candidate stays an intrusion while at least this
+    # share of the pixels it last covered is still foreground or cannot be judged (under the
+    # robot's mask, or not yet seen free): a forearm standing behind or in front of the stopped
+    # arm is hidden, not gone.
+    min_hidden_fraction: float = fraction(0.5)
     max_candidates: int = integer(3, minimum=1)
     clear_time_s: float = non_negative(1.0)
 
@@ -89,10 +101,18 @@ class MonitorConfig:
         check_fields("monitor", self)
         _check_box("monitor", self.volume_min_m, self.volume_max_m)
 
-    def inside(self, p_W: np.ndarray) -> np.ndarray:
-        """(N,) bool: which points (N, 3) lie in the monitored volume."""
+    def inside(self, p_W: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
+        """(N,) bool: which points (N, 3) lie in the monitored volume grown by margin_m."""
         p_W = np.atleast_2d(p_W)
-        return np.all((p_W >= self.volume_min_m) & (p_W <= self.volume_max_m), axis=1)
+        lo, hi = self.box_m(margin_m)
+        return np.all((p_W >= lo) & (p_W <= hi), axis=1)
+
+    def box_m(self, margin_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """The monitored volume's corners (3,), (3,) grown by margin_m on every side."""
+        return (
+            np.asarray(self.volume_min_m, float) - margin_m,
+            np.asarray(self.volume_max_m, float) + margin_m,
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,7 +143,7 @@ class Detection:
 class DepthCheck:
     """The stereo verdict on one component: its world centroid (median of its points, or None
     without enough depth), the fraction of its matched pixels, the fraction of its points inside
-    the volume and whether it is confirmed inside."""
+    the volume (grown by approach_margin_m) and whether it is confirmed inside."""
 
     point_W: np.ndarray | None
     valid_fraction: float
@@ -193,7 +213,7 @@ def depth_check(
     # Back to full-resolution rectified pixels (centres of the s x s blocks).
     uvd = np.stack([(u + 0.5) * s - 0.5 + x0, (v + 0.5) * s - 0.5 + y0, d * s], axis=1)
     p_W = lift_rectified_W(rig, uvd)
-    inside = float(np.mean(config.inside(p_W)))
+    inside = float(np.mean(config.inside(p_W, config.approach_margin_m)))
     return DepthCheck(
         np.median(p_W, axis=0), valid_fraction, inside, inside >= config.min_inside_fraction
     )
@@ -230,7 +250,8 @@ class IntrusionDetector:
         self._morph_kernel = _ellipse(_odd(c.morph_kernel_px / s))
         self._hold_kernel = _ellipse(2 * math.ceil(c.hold_margin_px / s) + 1)
         self._hold: np.ndarray | None = None
-        d_min, d_max = disparity_range(rig, c.volume_min_m, c.volume_max_m, c.min_depth_m)
+        self._held_core: np.ndarray | None = None
+        d_min, d_max = disparity_range(rig, *c.box_m(c.approach_margin_m), c.min_depth_m)
         # Search a quarter beyond the volume's disparities on both sides, so that a component
         # just outside the volume finds its true depth instead of a false minimum at the edge.
         pad = 0.25 * (d_max - d_min) + 4
@@ -324,8 +345,13 @@ class IntrusionDetector:
             fg = cv2.bitwise_or(fg, motion)
         fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self._morph_kernel)
         fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self._morph_kernel)
-        detection, hold = self._decide(fg, fg_bg, settled, left, right, t_s)
-        self._hold = None if hold is None else cv2.dilate(hold, self._hold_kernel)
+        detection, core = self._decide(fg, fg_bg, settled, left, right, t_s)
+        if core is None and self._held_core is not None:
+            hidden = self._hidden(fg_bg, settled, t_s, detection.candidates)
+            if hidden.intrusion:
+                detection, core = hidden, self._held_core
+        self._held_core = core
+        self._hold = None if core is None else cv2.dilate(core, self._hold_kernel)
         if detection.intrusion:
             self._last_intrusion_t = t_s
         since = t_s - max(self._last_intrusion_t, self._first_ready_t)
@@ -340,6 +366,22 @@ class IntrusionDetector:
             detection.candidates,
             clear,
         )
+
+    def _hidden(self, fg_bg, settled, t_s: float, candidates: int) -> Detection:
+        """A confirmed intruder no candidate shows any more: still an intrusion while the pixels
+        it last covered are mostly foreground or hidden (see min_hidden_fraction)."""
+        core = self._held_core > 0
+        # Foreground where it was or within hold_margin_px of it, or its pixels now covered by
+        # the robot's mask. Not the mask's own margin around the hold: next to an arm stopped
+        # for the intrusion it would hold the alarm for ever.
+        unknown = ((self._hold > 0) & (fg_bg > 0)) | (core & ~settled)
+        share = np.count_nonzero(unknown) / max(np.count_nonzero(core), 1)
+        if share < self.config.min_hidden_fraction:
+            return Detection(t_s, False, 0, None, None, False, candidates, False)
+        s = self.config.downscale
+        v, u = np.nonzero(core)
+        centroid = (float((u.mean() + 0.5) * s - 0.5), float((v.mean() + 0.5) * s - 0.5))
+        return Detection(t_s, True, int(len(u) * s * s), centroid, None, False, candidates, False)
 
     def _decide(self, fg, fg_bg, settled, left, right, t_s) -> tuple[Detection, np.ndarray | None]:
         """The reported detection and the confirmed components' pixels (downscaled grid)."""

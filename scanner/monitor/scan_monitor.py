@@ -97,6 +97,9 @@ class ScanMonitor:
         """Against the simulated truth: the intruders the video held, the alarms, captures and
         the tracked tool."""
         alarms = [e["t_s"] for e in events if e["kind"] == "intrusion"]
+        # Frames in alarm, not only its onsets: a monitor already in alarm as the intruder's
+        # axis reaches the volume (it came within approach_margin_m first) has detected it.
+        alarm_frames = [d.t_s for m in self.monitors for d in m.detections if d.intrusion]
         end = self.clock_s
         intrusions, latencies = [], []
         for path in self.paths:
@@ -104,7 +107,9 @@ class ScanMonitor:
             if entered is None:
                 continue  # the scan ended before this intruder reached the cell
             left = min(path.end_s, end)
-            hits = [t for t in alarms if entered - MATCH_WINDOW_S <= t <= left + MATCH_WINDOW_S]
+            hits = [
+                t for t in alarm_frames if entered - MATCH_WINDOW_S <= t <= left + MATCH_WINDOW_S
+            ]
             intrusions.append(
                 {"start_s": path.start_s, "entered_s": entered, "detected": bool(hits)}
             )
