@@ -20,8 +20,10 @@ Interface (SI units; times in seconds on the video's simulated clock; W = robot 
   (what a monitor must flag). `X_WI(t_s)`: its pose (z axis along the motion), or None.
 - `default_intruder_paths(start_times_s, seed, camera, volume)`: one path per start time,
   consecutive ones from different sides (the robot's left and right, above, the camera's
-  side), at random heights, speeds (0.5-1.0 m/s) and dwells (0.5-1.5 s); each stops fully in
-  view of both cameras of `camera` and enters and leaves from outside their view.
+  side), at random heights, speeds (0.5-1.0 m/s) and dwells (0.5-1.5 s); each enters and
+  leaves from outside the view of both cameras of `camera`, has its front 0.15 m in their view
+  when its axis reaches `volume` (a monitor sees it come), and stops fully in view with its hand
+  inside `volume`.
 - `CellFrame`: `t_s`, the raw grey `left` and `right` images ((H, W) uint8: lens distortion
   and sensor noise applied, NOT rectified: rectify with `CellVideo.stereo`), the arm's true
   and measured joints, and the truth `intruders_p_W` (centroids of the intruders present).
