@@ -28,7 +28,7 @@ from scanner.config import ScanConfig, with_overrides
 from scanner.scan import run_scan
 
 # (error-model seed, intruder start times s, intruder path seed) per scan.
-CASES = ((0, (), 0), (1, (4.0, 14.0), 1), (2, (7.0, 18.0), 2))
+CASES = ((0, (), 0), (1, (3.0, 10.0), 1), (2, (5.0, 12.5), 2))
 
 
 def _scan(root: Path, seed: int, intruders: tuple[float, ...], path_seed: int) -> dict:
