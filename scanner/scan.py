@@ -412,24 +412,19 @@ def _combined(summaries: list[RunSummary]) -> RunSummary:
 
 
 def _run_machine(machine: DecisionMaker, store: CaptureStore) -> RunSummary:
-    """The decision maker's run; a failed write (a full disk) stops the scan, keeping every
-    capture made so far, and says how to continue."""
+    """The decision maker's run; a failed write (a full disk) or a cell monitor that stopped
+    the arm ends the scan as interrupted, keeping every capture made so far, and says how to
+    continue."""
     try:
         return machine.run()
-    except MonitorStoppedError as e:
-        with suppress(OSError):
-            store.update_manifest(status="interrupted")
-        raise MonitorStoppedError(
-            f"{e}; the {len(store.captured_indices())} captures so far are kept; continue "
-            f"with: scanner scan --resume {store.root}"
-        ) from None
-    except StorageError as e:
+    except (MonitorStoppedError, StorageError) as e:
         # On a full disk the manifest may keep "running", which resumes the same way.
         with suppress(OSError):
             store.update_manifest(status="interrupted")
-        raise StorageError(
-            f"{e}; the {len(store.captured_indices())} captures so far are kept: free space, "
-            f"then continue with: scanner scan --resume {store.root}"
+        first = "free space, then continue" if isinstance(e, StorageError) else "continue"
+        raise type(e)(
+            f"{e}; the {len(store.captured_indices())} captures so far are kept: {first} "
+            f"with: scanner scan --resume {store.root}"
         ) from None
 
 
