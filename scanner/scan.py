@@ -26,7 +26,7 @@ from scanner.config import ScanConfig, scan_config_to_dict
 from scanner.decision import DecisionMaker, FixedViewList, RunSummary
 from scanner.manifest import SavedScan, new_manifest, open_scan, views_to_manifest
 from scanner.monitor.cell_monitor import MonitorStoppedError
-from scanner.monitor.scan_monitor import ScanMonitor
+from scanner.monitor.scan_monitor import ScanMonitor, intruders_truth
 from scanner.next_best_view import CoverageModel
 from scanner.reconstruct import holds_reconstruction, run_reconstruct
 from scanner.report import write_summary
@@ -45,7 +45,7 @@ class ScanResult:
     report: dict
 
 
-def _write_truth(store: CaptureStore, sim: Simulation, hangings: int) -> None:
+def _write_truth(store: CaptureStore, sim: Simulation, hangings: int, intruders: list) -> None:
     import open3d as o3d
 
     vertices_W = object_vertices_W(sim.object_mesh, sim.truth.X_WO)
@@ -61,6 +61,8 @@ def _write_truth(store: CaptureStore, sim: Simulation, hangings: int) -> None:
         hung_pose(sim.workcell.config.X_WO, sim.truth.seed, p).tolist() for p in range(hangings)
     ]
     extra = {"mesh": "truth_mesh.ply", "X_WO_hangings": X_WO_hangings}
+    if intruders:  # the cell monitor's simulated intruders (the software is never told)
+        extra["intruders"] = intruders
     save_truth(sim.truth, store.root / "truth.yaml", extra)
 
 
@@ -120,7 +122,8 @@ def _start_new(
     manifest = new_manifest(config, world.stereo, world.X_FC, views, plan_info)
     store = CaptureStore.create(out_dir, manifest, force)
     if world.sim is not None:
-        _write_truth(store, world.sim, config.hangings)
+        intruders = intruders_truth(config.monitor) if config.monitor.enabled else []
+        _write_truth(store, world.sim, config.hangings, intruders)
     return store, views
 
 

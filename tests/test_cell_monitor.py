@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import yaml
 
 from reconstruction.errors import ScannerError
 from scanner.cli import main
@@ -43,6 +44,10 @@ def test_an_intruder_pauses_the_scan_and_no_capture_is_taken_while_it_is_there(i
     assert "intrusion" in kinds and "paused" in kinds and "clear" in kinds
     # The cell is declared clear only after the intruder has left the monitored volume.
     (path,) = default_intruder_paths((4.0,), 0)
+    # The intruder (its path, known only to the simulator) is in the truth file.
+    truth = yaml.safe_load((intruded.scan_dir / "truth.yaml").read_text())
+    (recorded,) = truth["intruders"]
+    assert recorded["start_s"] == 4.0 and recorded["stop_m"] == pytest.approx(list(path.stop_m))
     clear = next(e["t_s"] for e in m["events"] if e["kind"] == "clear")
     assert not path.present(clear) and clear > path.start_s
     # The tool is tracked while the arm moves.

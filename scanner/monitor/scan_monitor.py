@@ -20,16 +20,39 @@ from scanner.monitor.guard import MonitoredCamera, MonitoredRobot
 MATCH_WINDOW_S = 0.5
 
 
+def intruder_paths(settings: MonitorSettings) -> tuple:
+    """The simulated intruders of a monitored scan (robots.cell_video.IntruderPath), drawn from
+    the settings' start times and seed, reaching into the configured monitored volume."""
+    from robots.cell_video import CellVolume, default_intruder_paths
+
+    d = settings.detection
+    volume = CellVolume(d.volume_min_m, d.volume_max_m)
+    return default_intruder_paths(
+        settings.intruder_start_s, settings.intruder_seed, settings.camera, volume
+    )
+
+
+def intruders_truth(settings: MonitorSettings) -> list[dict]:
+    """The intruders for truth.yaml (SI units): what only the simulator knows."""
+    return [
+        {
+            "start_s": p.start_s,
+            "end_s": p.end_s,
+            "entry_m": list(p.entry_m),
+            "stop_m": list(p.stop_m),
+            "speed_m_s": p.speed_m_s,
+            "dwell_s": p.dwell_s,
+            "radius_m": p.radius_m,
+            "length_m": p.length_m,
+        }
+        for p in intruder_paths(settings)
+    ]
+
+
 class ScanMonitor:
     def __init__(self, settings: MonitorSettings) -> None:
-        from robots.cell_video import CellVolume, default_intruder_paths
-
         self.settings = settings
-        d = settings.detection
-        self.volume = CellVolume(d.volume_min_m, d.volume_max_m)
-        self.paths = default_intruder_paths(
-            settings.intruder_start_s, settings.intruder_seed, settings.camera, self.volume
-        )
+        self.paths = intruder_paths(settings)
         self.kinematics = Kinematics()
         self.monitors: list[CellMonitor] = []
         self.cameras: list[MonitoredCamera] = []
