@@ -372,7 +372,7 @@ def export_mesh(mesh: SurfaceMesh, X_WO: np.ndarray, config: MeshExportConfig) -
         hausdorff = hausdorff_bound(mesh, out, config.hausdorff_tolerance_m)
     elif config.decimate_triangles is not None:
         hausdorff = HausdorffBound(0.0, 0.0, 0.0, 0.0)
-    watertight = mesh_quality(out).watertight
+    watertight = watertight_full if out is mesh else mesh_quality(out).watertight
     return ExportedMesh(
         mesh.name,
         to_export_coordinates(out, X_WO, config.units),
