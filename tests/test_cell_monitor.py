@@ -91,6 +91,28 @@ def test_a_failing_monitor_stops_the_arm_before_it_moves(tmp_path, monkeypatch):
     assert store.captured_indices() == [] and store.read_manifest()["status"] == "interrupted"
 
 
+def test_a_monitor_that_falls_behind_stops_the_arm(tmp_path, monkeypatch):
+    import time
+
+    import scanner.monitor.detector as detector
+
+    original = detector.IntrusionDetector.update
+
+    def slow_after_warm_up(self, *args, **kwargs):
+        if self.ready:
+            time.sleep(0.1)  # 100 ms per frame against a camera's 67 ms at 15 fps
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(detector.IntrusionDetector, "update", slow_after_warm_up)
+    config = _config()
+    config = replace(config, monitor=replace(config.monitor, max_lag_s=0.3))
+    with pytest.raises(MonitorStoppedError, match="fell .* behind the camera"):
+        run_scan(config, tmp_path / "scan")
+    from scanner.captures import CaptureStore
+
+    assert CaptureStore.open(tmp_path / "scan").read_manifest()["status"] == "interrupted"
+
+
 def test_a_frame_rate_the_machine_cannot_keep_up_with_is_refused(tmp_path):
     config = _config()
     detection = replace(config.monitor.detection, fps=900.0)
