@@ -108,7 +108,12 @@ def inspect_model(
     """The reference aligned onto the model, the deviations and the report (no files)."""
     from reconstruction.deviation import deviation_stats, signed_distances
     from reconstruction.metrics import TriangleSurface, evaluate_surface
-    from reconstruction.reference_alignment import align_reference, fit_as_given, reference_unit
+    from reconstruction.reference_alignment import (
+        align_reference,
+        fit_as_given,
+        reference_unit,
+        scaled,
+    )
     from reconstruction.transforms import transform_points
 
     unit = options.reference_unit
@@ -123,9 +128,9 @@ def inspect_model(
             f"fit (at least {MIN_OVERLAP:.0%} needed); check it is the same part and its unit "
             f"(read as {unit}; --reference-unit) and, with --align none, its placement",
         )
+    in_metres = scaled(reference, unit)
     placed = TriangleSurface(
-        transform_points(alignment.X_MR, np.asarray(reference.vertices, float) * _scale(unit)),
-        reference.triangles,
+        transform_points(alignment.X_MR, in_metres.vertices), in_metres.triangles
     )
     signed = signed_distances(model.vertices, placed)
     stats = deviation_stats(signed, options.tolerance_m)
@@ -147,12 +152,6 @@ def inspect_model(
         "passed": stats.within_tolerance >= options.min_within,
     }
     return placed, signed, stats, report
-
-
-def _scale(unit: str) -> float:
-    from reconstruction.reference_alignment import UNIT_SCALES
-
-    return UNIT_SCALES[unit]
 
 
 def run_inspect(target: Path, options: InspectOptions) -> InspectRun:
