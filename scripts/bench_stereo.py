@@ -6,6 +6,8 @@ with the true depth. Prints one JSON line:
   seconds_per_pair: rectify + SGBM + reproject at 1280x960; median of 3 runs per view, mean over
     views, after one warm-up;
   median_abs_depth_error_mm, p90_abs_depth_error_mm: over all object points of all views;
+  mean_depth_error_mm: their signed mean (measured - true z in the left camera frame): a bias
+    that the absolute errors hide;
   valid_fraction: mean share of the object's left-image pixels that got a point
     (valid_fraction_both_visible: of those the right camera sees too);
   background_false_valid_fraction: mean share of pixels with nothing in the depth window that
@@ -85,12 +87,13 @@ def main() -> None:
             runs.append(time.perf_counter() - start)
         seconds.append(float(np.median(runs)))
         acc = stereo_accuracy(rect, cloud, truth.depth_m, truth.object_mask, *window)
-        errors.append(np.abs(acc.depth_errors_m))
+        errors.append(acc.depth_errors_m)
         valid.append(acc.valid_fraction)
         valid_both.append(acc.valid_fraction_both_visible)
         background.append(acc.background_false_valid_fraction)
 
-    all_errors_mm = 1e3 * np.concatenate(errors)
+    signed_errors_mm = 1e3 * np.concatenate(errors)
+    all_errors_mm = np.abs(signed_errors_mm)
     min_d, num_d = disparity_window(*window, rect.focal_px, rect.baseline_m)
     width, height = rect.image_size
     print(
@@ -99,6 +102,7 @@ def main() -> None:
                 "seconds_per_pair": round(float(np.mean(seconds)), 4),
                 "median_abs_depth_error_mm": round(float(np.median(all_errors_mm)), 4),
                 "p90_abs_depth_error_mm": round(float(np.percentile(all_errors_mm, 90)), 4),
+                "mean_depth_error_mm": round(float(np.mean(signed_errors_mm)), 4),
                 "valid_fraction": round(float(np.mean(valid)), 4),
                 "valid_fraction_both_visible": round(float(np.mean(valid_both)), 4),
                 "background_false_valid_fraction": round(float(np.mean(background)), 5),

@@ -56,8 +56,31 @@ def check_pair(left: np.ndarray, right: np.ndarray) -> None:
         )
 
 
+# Added to a raw SGBM disparity (sixteenths of a pixel) by its residue k = raw mod 16: the centre
+# of the parabola offsets that OpenCV reports as that residue (see decoded_sixteenths). Residue 0
+# also collects the offsets in (-1.5, -0.5), so its centre is -0.5; residue 8 only comes from
+# [7.5, 8], residue 9 from (-8, -7.5]; residues 10..15 are one sixteenth too high.
+_SUBPIXEL_CORRECTION_SIXTEENTHS = np.array(
+    [-0.5, 0, 0, 0, 0, 0, 0, 0, -0.25, -0.75, -1, -1, -1, -1, -1, -1], np.float32
+)
+
+
+def decoded_sixteenths(raw: np.ndarray) -> np.ndarray:
+    """Raw SGBM disparities (int16, sixteenths of a pixel) -> float32 sixteenths without the
+    rounding bias of OpenCV's sub-pixel step.
+
+    OpenCV rounds the parabola's offset delta (in sixteenths) as the C integer quotient of
+    delta + 1/2, which truncates towards zero: for delta < -1/2 the result is one sixteenth too
+    high, a mean bias of about +0.03 px. Each residue is mapped to the centre of the offsets that
+    produce it; np.mod keeps the residue in 0..15 for negative disparities too.
+    """
+    raw = np.asarray(raw)
+    return raw.astype(np.float32) + _SUBPIXEL_CORRECTION_SIXTEENTHS[np.mod(raw, SGBM_SCALE)]
+
+
 def _sgbm(left, right, min_disparity, num_disparities, params: StereoParams) -> np.ndarray:
-    """Raw SGBM in pixels, NaN where SGBM found nothing.
+    """SGBM in pixels (sub-pixel rounding bias removed: decoded_sixteenths), NaN where SGBM found
+    nothing.
 
     Left columns below min_disparity can only match outside the right image and right columns
     beyond width - min_disparity only left pixels outside the left image, so both are cropped
@@ -82,7 +105,7 @@ def _sgbm(left, right, min_disparity, num_disparities, params: StereoParams) -> 
     raw = matcher.compute(left[:, shift:], right[:, : width - shift])
     disparity = np.full((height, width), np.nan, np.float32)
     found = raw >= (min_disparity - shift) * SGBM_SCALE
-    disparity[:, shift:][found] = raw[found].astype(np.float32) / SGBM_SCALE + shift
+    disparity[:, shift:][found] = decoded_sixteenths(raw[found]) / SGBM_SCALE + shift
     return disparity
 
 
