@@ -111,6 +111,11 @@ class StereoCamera:
         """Pose of the right camera in the left camera frame (4x4)."""
         return invert(make_pose(self.R, self.T))
 
+    def eye_centres_W(self, X_WC: np.ndarray) -> np.ndarray:
+        """Left and right camera centres (2, 3) in W, the left camera at X_WC: what a view
+        sees is what both of them see."""
+        return np.stack([X_WC[:3, 3], (X_WC @ self.X_CR)[:3, 3]])
+
 
 def project_points(camera: PinholeCamera, p_S: np.ndarray) -> np.ndarray:
     """(N, 2) pixels of points p_S (N, 3) in the camera's optical frame S, through OpenCV's

@@ -2,9 +2,9 @@
 
 An untrimmed Poisson surface of the fused cloud is closed: where no view saw the object it
 bridges the gap with a smooth patch of about the missing area. The coverage estimate is the
-share of that closed surface which some camera of the scan (at its estimated pose) sees, facing
-it and unoccluded: the same test the simulator's `observed_fraction` applies to the true
-surface and the true camera centres, here on what the software itself knows.
+share of that closed surface which some view of the scan (both its cameras, at the estimated
+pose) sees, facing it and unoccluded: the same test the simulator's `observed_fraction` applies
+to the true surface and the true camera centres, here on what the software itself knows.
 """
 
 from __future__ import annotations
@@ -49,7 +49,8 @@ class Coverage:
 def coverage_estimate(
     fused: FusedCloud, camera_centres_W: Sequence[np.ndarray], samples: int = 50_000
 ) -> Coverage:
-    """How much of the closed surface through the data the cameras saw."""
+    """How much of the closed surface through the data the views saw (`camera_centres_W`: per
+    view a camera centre (3,) or its stereo eye centres (2, 3), as `visible_mask` takes them)."""
     if len(fused) < 100 or not len(camera_centres_W):
         return Coverage(0.0, math.nan)
     surface = closed_surface(fused)

@@ -9,8 +9,9 @@ edge, named by unit). Conventions, for result R and truth T:
 - fscore at tau: harmonic mean of precision (result points within tau of the truth) and recall
   (truth samples within tau of the result); completeness_2mm is that recall at 2 mm;
 - accuracy_p90_mm: 90th percentile of result -> truth.
-The "observed" variants restrict the truth samples to those visible from at least one camera
-(not occluded, facing it within `max_incidence_rad`): the RX60 reaches only a band of viewing
+The "observed" variants restrict the truth samples to those at least one view saw: for a stereo
+view, BOTH of its cameras see the sample (not occluded, facing each within `max_incidence_rad`),
+as stereo measures nothing that only one camera sees. The RX60 reaches only a band of viewing
 directions, so whole-object completeness mixes sensing quality with coverage.
 """
 
@@ -94,6 +95,14 @@ def _sees(scene, p, normals, centre, todo, max_incidence_rad, offset_m) -> np.nd
     return seen
 
 
+def _seen_by_every_eye(scene, p, normals, eyes, todo, max_incidence_rad, offset_m) -> np.ndarray:
+    """Which of the points `todo` every eye of one view sees (`eyes`: (k, 3) or (3,) centres in
+    the scene's shifted coordinates)."""
+    for eye in np.atleast_2d(eyes):
+        todo = _sees(scene, p, normals, eye, todo, max_incidence_rad, offset_m)
+    return todo
+
+
 def visible_mask(
     samples: SurfaceSamples,
     surface: TriangleSurface,
@@ -101,17 +110,18 @@ def visible_mask(
     max_incidence_rad: float = math.radians(80.0),
     offset_m: float = 1e-4,
 ) -> np.ndarray:
-    """True for samples that at least one camera centre sees: the sample faces it (angle
-    between its outward normal and the direction to the camera below `max_incidence_rad`) and
-    the segment to it hits no triangle. Rays start `offset_m` off the surface so that they do
-    not hit their own triangle."""
+    """True for samples that at least one view sees. A view is a camera centre (3,) or the eye
+    centres (k, 3) of a stereo rig (see `StereoCamera.eye_centres_W`), all of which must see
+    the sample. An eye sees it when the sample faces it (angle between its outward normal and
+    the direction to the eye below `max_incidence_rad`) and the segment to it hits no triangle.
+    Rays start `offset_m` off the surface so that they do not hit their own triangle."""
     origin = np.asarray(surface.vertices).mean(axis=0)
     scene = _scene(surface, origin)
     p = samples.points - origin
     seen = np.zeros(len(p), bool)
     for centre in camera_centres_W:
         c = np.asarray(centre) - origin
-        seen |= _sees(scene, p, samples.normals, c, ~seen, max_incidence_rad, offset_m)
+        seen |= _seen_by_every_eye(scene, p, samples.normals, c, ~seen, max_incidence_rad, offset_m)
     return seen
 
 
@@ -122,15 +132,17 @@ def visibility(
     max_incidence_rad: float = math.radians(80.0),
     offset_m: float = 1e-4,
 ):
-    """For each camera centre in turn, which samples it sees (the rule of `visible_mask`);
-    the surface's ray-casting scene is built once."""
+    """For each view (camera centre or stereo eye centres) in turn, which samples it sees (the
+    rule of `visible_mask`); the surface's ray-casting scene is built once."""
     origin = np.asarray(surface.vertices).mean(axis=0)
     scene = _scene(surface, origin)
     p = samples.points - origin
     everything = np.ones(len(p), bool)
     for centre in camera_centres_W:
         c = np.asarray(centre) - origin
-        yield _sees(scene, p, samples.normals, c, everything, max_incidence_rad, offset_m)
+        yield _seen_by_every_eye(
+            scene, p, samples.normals, c, everything, max_incidence_rad, offset_m
+        )
 
 
 def surface_metrics(

@@ -26,19 +26,20 @@ from scanner.config import ProcessingConfig
 from scanner.scan_views import Gathered
 
 
-def _true_camera_centres(views: Gathered, to_first: list[np.ndarray]) -> dict[int, np.ndarray]:
-    """True camera centre of every view (by capture index), in the first hanging's frame
-    (`to_first`: per hanging, the true transform of its placement onto the first's)."""
+def _true_eyes(views: Gathered, to_first: list[np.ndarray]) -> dict[int, np.ndarray]:
+    """True left and right camera centres (2, 3) of every view (by capture index), in the first
+    hanging's frame (`to_first`: per hanging, the true transform of its placement onto the
+    first's)."""
     from robots.kinematics import Kinematics
 
     hanging_of = {i: h for h, indices in enumerate(views.hangings) for i in indices}
     kin = Kinematics()
-    centres = {}
+    eyes = {}
     for i, q in views.joints.items():
         truth = views.truths[views.scan_of[i]][0]
         X_WC = kin.X_WF(q + truth.joint_offsets_rad) @ truth.X_FC
-        centres[i] = transform_points(to_first[hanging_of[i]], X_WC[:3, 3][None])[0]
-    return centres
+        eyes[i] = transform_points(to_first[hanging_of[i]], truth.stereo.eye_centres_W(X_WC))
+    return eyes
 
 
 def _object_poses(truth) -> list[np.ndarray]:
@@ -58,33 +59,36 @@ def to_first_hanging(views: Gathered) -> list[np.ndarray] | None:
     return [poses[0] @ invert(X) for X in poses]
 
 
-def _pass_coverage(result, hanging: int, voxel_m: float) -> float:
-    """The coverage estimate of one hanging's views alone."""
+def _pass_coverage(result, hanging: int, voxel_m: float, eyes: dict[int, np.ndarray]) -> float:
+    """The coverage estimate of one hanging's views alone (`eyes`: each view's estimated eye
+    centres by capture index)."""
     pairs = [(v, c) for v, c in zip(result.views, result.clouds) if v.hanging == hanging]
     fused = fuse_clouds([c for _, c in pairs], [v.X_WC for v, _ in pairs], voxel_m)
-    return coverage_estimate(fused, [v.X_WC[:3, 3] for v, _ in pairs]).fraction
+    return coverage_estimate(fused, [eyes[v.index] for v, _ in pairs]).fraction
 
 
-def _pass_observed(surface, centres: list[np.ndarray]) -> float:
-    """The share of the true surface one hanging's (true) cameras saw."""
-    return float(visible_mask(sample_surface(surface, 50_000), surface, centres).mean())
+def _pass_observed(surface, eyes: list[np.ndarray]) -> float:
+    """The share of the true surface one hanging's (true) views saw."""
+    return float(visible_mask(sample_surface(surface, 50_000), surface, eyes).mean())
 
 
-def hangings_report(result, views: Gathered, to_first, voxel_m: float) -> dict:
+def hangings_report(
+    result, views: Gathered, to_first, voxel_m: float, eyes: dict[int, np.ndarray]
+) -> dict:
     """Per hanging its views, coverage and alignment figures, and (with truth) its observed
-    fraction and alignment errors."""
+    fraction and alignment errors. `eyes`: each view's estimated eye centres by capture index."""
     surface = views.truths[0][1] if to_first is not None else None
-    centres = _true_camera_centres(views, to_first) if to_first is not None else {}
+    true_eyes = _true_eyes(views, to_first) if to_first is not None else {}
     passes = []
     for h in range(len(views.hangings)):
         indices = [v.index for v in result.views if v.hanging == h]
         record: dict = {
             "hanging": h + 1,
             "views": len(indices),
-            "coverage_estimate": _pass_coverage(result, h, voxel_m),
+            "coverage_estimate": _pass_coverage(result, h, voxel_m, eyes),
         }
         if surface is not None:
-            record["observed_fraction"] = _pass_observed(surface, [centres[i] for i in indices])
+            record["observed_fraction"] = _pass_observed(surface, [true_eyes[i] for i in indices])
         a = next((a for a in result.alignments if a.hanging == h), None)
         if a is not None:
             record.update(
@@ -108,11 +112,11 @@ def hangings_report(result, views: Gathered, to_first, voxel_m: float) -> dict:
     return out
 
 
-def evaluate(result: ReconstructionResult, truth, surface, centres, samples: int) -> dict:
+def evaluate(result: ReconstructionResult, truth, surface, eyes, samples: int) -> dict:
     """Metrics of every surface against the truth, and the hand-eye error before/after."""
     out: dict = {"surfaces": {}}
     results = {name: TriangleSurface(m.vertices, m.triangles) for name, m in result.meshes.items()}
-    truth_samples = truth_sampling(surface, centres, samples)
+    truth_samples = truth_sampling(surface, eyes, samples)
     for name, mesh in results.items():
         out["surfaces"][name] = evaluate_surface(
             None, surface, result_mesh=mesh, n_samples=samples, truth_samples=truth_samples
@@ -131,9 +135,9 @@ def evaluate(result: ReconstructionResult, truth, surface, centres, samples: int
 def truth_metrics(result, views: Gathered, processing: ProcessingConfig, to_first) -> dict:
     """The report's accuracy keys (against the first scan's truth, in its first hanging's
     frame): the primary surface's metrics first, then all of them."""
-    centres = list(_true_camera_centres(views, to_first).values())
+    eyes = list(_true_eyes(views, to_first).values())
     truth = views.truths[0]
-    metrics = evaluate(result, truth[0], truth[1], centres, processing.metric_samples)
+    metrics = evaluate(result, truth[0], truth[1], eyes, processing.metric_samples)
     primary = metrics["surfaces"].get(processing.primary_surface)
     if primary is None:
         raise ScannerError(

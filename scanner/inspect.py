@@ -45,8 +45,9 @@ class InspectOptions:
 
 @dataclass(frozen=True, eq=False)
 class ModelSource:
-    """The mesh to inspect, the camera centres that saw it (from a reconstruction; None for a
-    bare mesh file), and where the inspection folder goes by default."""
+    """The mesh to inspect, the camera (or stereo eye) centres that saw it (from a
+    reconstruction; None for a bare mesh file), and where the inspection folder goes by
+    default."""
 
     mesh_path: Path
     camera_centres: list[np.ndarray] | None
@@ -94,7 +95,12 @@ def model_source(target: Path) -> ModelSource:
         )
     primary = json.loads(report_path.read_text()).get("primary_surface", "poisson")
     details = read_yaml(results / "reconstruction.yaml", "reconstruction")
-    centres = [np.array(v["X_WC"], float)[:3, 3] for v in details.get("views", [])]
+    # A stereo view saw what both of its cameras saw, as in the scan's own report (results
+    # written before the eyes were recorded: the left camera's centre).
+    centres = [
+        np.array(v.get("eye_centres_W_m", np.array(v["X_WC"])[:3, 3]), float)
+        for v in details.get("views", [])
+    ]
     return ModelSource(results / f"mesh_{primary}.ply", centres or None, results)
 
 

@@ -63,13 +63,18 @@ def free_reconstruction_dir(scan_dir: Path) -> Path:
     return free_results_dir(scan_dir, RECONSTRUCTION_MARKER)
 
 
-def _write_results(result, processing: ProcessingConfig, truth, out: Path) -> dict:
-    """Meshes, the fused cloud, reconstruction.yaml and the plots; their report keys."""
+def _write_results(
+    result, processing: ProcessingConfig, truth, out: Path, eyes: dict[int, np.ndarray]
+) -> dict:
+    """Meshes, the fused cloud, reconstruction.yaml and the plots; their report keys. `eyes`:
+    each view's camera centres at its final pose (kept with the view: what it saw)."""
     from scanner.report_plots import write_plots
 
     exports = prepare_exports(result.meshes, processing.mesh_export, processing.primary_surface)
     paths = save_outputs(result, out, processing.mesh_formats, exports)
     details = summary(result)
+    for view in details["views"]:
+        view["eye_centres_W_m"] = eyes[view["index"]].tolist()
     atomic_write_text(
         out / "reconstruction.yaml",
         yaml.safe_dump({"processing": to_dict(processing), **details}, sort_keys=False),
@@ -220,8 +225,12 @@ def _reconstruct(
         "settings": _settings(processing, first, origin or {}),
     }
     with timer("coverage"):
-        centres = [v.X_WC[:3, 3] for v in result.views]
-        coverage = coverage_estimate(result.fused, centres)
+        # Each view's cameras at its estimated pose: a view saw what both of them saw.
+        eyes = {
+            v.index: (stereo or scans[views.scan_of[v.index]].stereo).eye_centres_W(v.X_WC)
+            for v in result.views
+        }
+        coverage = coverage_estimate(result.fused, list(eyes.values()))
         report["coverage_estimate"] = coverage.fraction
         report["unseen_area_m2"] = coverage.unseen_area_m2
     closed = result.meshes.get("poisson_closed")
@@ -237,11 +246,11 @@ def _reconstruct(
             report.update(truth_metrics(result, views, processing, to_first))
     if hangings:
         voxel = config.surfaces.fused_voxel_size_m
-        report.update(hangings_report(result, views, to_first, voxel))
+        report.update(hangings_report(result, views, to_first, voxel, eyes))
     earlier = _earlier_report(out)
     with staged_folder(out) as staging:
         with timer("write"):
-            report.update(_write_results(result, processing, truth, staging))
+            report.update(_write_results(result, processing, truth, staging, eyes))
         report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
         report["reconstruct_s"] = time.perf_counter() - t0
         merged = {**earlier, **report}

@@ -118,6 +118,33 @@ def test_occluded_samples_are_not_visible():
     assert seen[~behind & np.all(np.abs(s.points[:, :2] - 0.05) > 0.011, axis=1)].all()
 
 
+def test_a_stereo_view_sees_only_what_both_of_its_cameras_see():
+    # The small square (0.1 m above) hides a patch of the big one from each eye; the patches
+    # are 22 mm apart (eyes 0.2 m apart, 1 m above), so a stereo view misses both while either
+    # eye alone misses one.
+    big = _square(0.1)
+    small = TriangleSurface(
+        _square(0.01).vertices + [0.045, 0.045, 0.1], np.array([[0, 1, 2], [0, 2, 3]])
+    )
+    both = TriangleSurface(
+        np.vstack([big.vertices, small.vertices]),
+        np.vstack([big.triangles, small.triangles + 4]),
+    )
+    s = sample_surface(big, 20_000, seed=4)
+    left, right = np.array([-0.05, 0.05, 1.0]), np.array([0.15, 0.05, 1.0])
+    seen_left = visible_mask(s, both, [left])
+    seen_right = visible_mask(s, both, [right])
+    stereo = visible_mask(s, both, [np.stack([left, right])])
+    np.testing.assert_array_equal(stereo, seen_left & seen_right)
+    assert (~seen_left).sum() > 0 and (~seen_right).sum() > 0
+    assert not (~seen_left & ~seen_right).any()
+    assert (~stereo).sum() == (~seen_left).sum() + (~seen_right).sum()
+    # Two views, each a stereo pair: the union of what each pair sees.
+    above = np.array([0.05, 0.05, 1.0])
+    views = visible_mask(s, both, [np.stack([left, right]), above])
+    np.testing.assert_array_equal(views, stereo | visible_mask(s, both, [above]))
+
+
 def test_evaluate_surface_of_the_truth_itself_is_near_zero():
     sphere = _sphere()
     m = evaluate_surface(

@@ -75,8 +75,9 @@ class StereoParams:
     # background goes. "reject": every pixel with a low-texture neighbour goes (the simulator
     # is fine with it; smooth real surfaces go too: Middlebury density 0.40-0.58).
     # Measured with these defaults: Middlebury Tsukuba / Venus density 0.974 / 0.911, bad
-    # pixels (> 1 px) 4.63 / 1.39 % (plain SGBM 0.98 / 0.96, 4.65 / 1.52 %); simulated
-    # background false-valid 0.13 % (vase) / 0.16 % (bracket), 3.9-4.0 % without the filter;
+    # pixels (> 1 px) 4.76 / 1.38 % with the sub-pixel decoding (4.63 / 1.39 % before it;
+    # plain SGBM 0.98 / 0.96, 4.65 / 1.52 %); simulated background false-valid 0.13 % (vase)
+    # / 0.16 % (bracket), 3.9-4.0 % without the filter;
     # the 24-view bunny's observed-surface Chamfer 0.234 mm ("reject": 0.237 mm).
     texture_window_px: int = 9
     texture_min_std_levels: float = non_negative(4.0)
