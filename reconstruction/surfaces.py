@@ -39,6 +39,10 @@ from reconstruction.transforms import invert, rotate_vectors, transform_points
 from reconstruction.views import DepthImage
 
 MESH_SUFFIXES = (".ply", ".obj", ".stl")
+# The depth maps' robot/cell removal decides per cell of this size, not per pixel: the pixels
+# of a 1 mm cell (~7 at 0.5 m) are one fused voxel anyway, and the removal margin is 10 mm.
+# On the 24-view bunny the removal took 2.8 of the TSDF's 6.4 s per pixel.
+HOOK_CELL_M = 0.001
 
 
 @dataclass(frozen=True)
@@ -318,9 +322,16 @@ def masked_depth(
     p_W = transform_points(view.X_WC @ view.depth.X_CD, p_D)
     keep = roi.contains(p_W)
     if remove_points is not None and keep.any():
-        # The robot/cell test is the costly one: only on the points the region keeps.
+        # The robot/cell test is the costly one: only on the points the region keeps, and once
+        # per HOOK_CELL_M cell (its ~7 pixels share the decision of its first one).
         inside = np.flatnonzero(keep)
-        keep[inside] = apply_hook(remove_points, p_W[inside], view.index)
+        cells = np.floor(p_W[inside] / HOOK_CELL_M).astype(np.int64)
+        cells -= cells.min(axis=0)
+        span = cells.max(axis=0) + 1
+        key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+        _, first, cell_of = np.unique(key, return_index=True, return_inverse=True)
+        kept = apply_hook(remove_points, p_W[inside[first]], view.index)
+        keep[inside] = kept[cell_of]
     depth[v[~keep], u[~keep]] = 0
     return depth
 
