@@ -159,6 +159,26 @@ def fill_small_holes(mesh: o3d.geometry.TriangleMesh, max_radius_m: float) -> in
     if max_radius_m <= 0 or not len(mesh.triangles):
         return 0
     before = _boundary_loop_count(mesh)
+    vertices = np.asarray(mesh.vertices)
+    triangles = _vtk_fill(vertices, np.asarray(mesh.triangles), max_radius_m)
+    triangles = _fan_fill(vertices, triangles, max_radius_m)
+    triangles = _reopen_pinches(vertices, triangles, max_radius_m)
+    mesh.triangles = o3d.utility.Vector3iVector(triangles)
+    return before - _boundary_loop_count(mesh)
+
+
+def _vtk_fill(
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    max_radius_m: float,
+    within: np.ndarray | None = None,
+) -> np.ndarray:
+    """The triangles with VTK's patches of the holes up to max_radius_m, each patch kept only
+    when it leaves every edge manifold (and, with `within`, a vertex mask, when all its
+    vertices are in it)."""
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles)
+    )
     # fill_holes hands the mesh to VTK without copying: the tensor mesh must stay alive until
     # the result is copied back (a temporary gave garbage vertices).
     tensor_mesh = o3d.t.geometry.TriangleMesh.from_legacy(mesh)
@@ -166,21 +186,65 @@ def fill_small_holes(mesh: o3d.geometry.TriangleMesh, max_radius_m: float) -> in
     del tensor_mesh
     # VTK works in float32 and only adds triangles between existing boundary vertices: keep
     # our float64 vertices (and colours) and take its triangles.
-    if len(closed.vertices) != len(mesh.vertices) or not np.allclose(
-        np.asarray(closed.vertices), np.asarray(mesh.vertices), rtol=0, atol=1e-6
+    if len(closed.vertices) != len(vertices) or not np.allclose(
+        np.asarray(closed.vertices), vertices, rtol=0, atol=1e-6
     ):
         raise RuntimeError("fill_holes moved or added vertices")
-    triangles = np.asarray(closed.triangles)
-    original = np.asarray(mesh.triangles)
+    filled = np.asarray(closed.triangles)
     # VTK appends the new triangles after the existing ones.
-    if not np.array_equal(triangles[: len(original)], original):
+    if not np.array_equal(filled[: len(triangles)], triangles):
         raise RuntimeError("fill_holes changed the existing triangles")
-    added = np.arange(len(triangles)) >= len(original)
+    added = np.arange(len(filled)) >= len(triangles)
+    if within is not None:
+        outside = added & ~within[filled].all(axis=1)
+        filled, added = filled[~outside], added[~outside]
     if added.any():
-        triangles = triangles[_manifold_patches(triangles, added)]
-    triangles = _fan_fill(np.asarray(mesh.vertices), triangles, max_radius_m)
-    mesh.triangles = o3d.utility.Vector3iVector(triangles)
-    return before - _boundary_loop_count(mesh)
+        filled = filled[_manifold_patches(filled, added)]
+    return filled
+
+
+def _small_loops(vertices: np.ndarray, triangles: np.ndarray, max_radius_m: float) -> list:
+    """The boundary loops (each its (K, 2) edges) that fit in a sphere of max_radius_m."""
+    use = _edge_use(triangles)
+    boundary = use.edges[use.uses == 1]
+    if not len(boundary):
+        return []
+    n = len(vertices)
+    graph = coo_matrix((np.ones(len(boundary)), (boundary[:, 0], boundary[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    loops = []
+    for loop_label in np.unique(label[boundary[:, 0]]):
+        edges = boundary[label[boundary[:, 0]] == loop_label]
+        points = vertices[np.unique(edges)]
+        if np.linalg.norm(points - points.mean(axis=0), axis=1).max() <= max_radius_m:
+            loops.append(edges)
+    return loops
+
+
+def _reopen_pinches(
+    vertices: np.ndarray, triangles: np.ndarray, max_radius_m: float, rounds: int = 3
+) -> np.ndarray:
+    """Small holes neither filler could close: their rim is pinched (a vertex where two fans
+    of the surface touch, so every patch would reuse an existing edge; Poisson leaves these
+    where thin sheets meet). The triangles touching the rim go and the wider hole is filled
+    again, within that spot only, a ring wider each round; if it still cannot be closed,
+    nothing changes."""
+    loops = _small_loops(vertices, triangles, max_radius_m)
+    spot = np.zeros(len(vertices), bool)
+    current = triangles
+    for k in range(1, rounds + 1):
+        if not loops:
+            return current
+        rim = np.zeros(len(vertices), bool)
+        rim[np.concatenate([np.unique(e) for e in loops])] = True
+        touching = rim[current].any(axis=1)
+        spot[current[touching].ravel()] = True
+        # Each removed ring is about one Poisson cell, the size of the holes themselves.
+        wider = (1 + k) * max_radius_m
+        current = _vtk_fill(vertices, current[~touching], wider, within=spot)
+        current = _fan_fill(vertices, current, wider, within=spot)
+        loops = [e for e in _small_loops(vertices, current, wider) if spot[e].all()]
+    return triangles if loops else current
 
 
 def _loop_order(boundary: np.ndarray) -> list[int] | None:
@@ -203,23 +267,21 @@ def _loop_order(boundary: np.ndarray) -> list[int] | None:
     return order if len(order) == len(neighbours) else None
 
 
-def _fan_fill(vertices: np.ndarray, triangles: np.ndarray, max_radius_m: float) -> np.ndarray:
+def _fan_fill(
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    max_radius_m: float,
+    within: np.ndarray | None = None,
+) -> np.ndarray:
     """Small holes VTK's filler left (its patch would have made an edge non-manifold: a
     diagonal of the hole already exists elsewhere) closed by a fan from the loop vertex whose
-    diagonals are all new, oriented like the loop's own triangles."""
+    diagonals are all new, oriented like the loop's own triangles. `within`: a vertex mask;
+    only loops all in it."""
     use = _edge_use(triangles)
-    boundary = use.edges[use.uses == 1]
-    if not len(boundary):
-        return triangles
     n = len(vertices)
-    graph = coo_matrix((np.ones(len(boundary)), (boundary[:, 0], boundary[:, 1])), shape=(n, n))
-    _, label = connected_components(graph, directed=False)
-    loops = []
-    for loop_label in np.unique(label[boundary[:, 0]]):
-        edges = boundary[label[boundary[:, 0]] == loop_label]
-        points = vertices[np.unique(edges)]
-        if np.linalg.norm(points - points.mean(axis=0), axis=1).max() <= max_radius_m:
-            loops.append(edges)
+    loops = _small_loops(vertices, triangles, max_radius_m)
+    if within is not None:
+        loops = [e for e in loops if within[e].all()]
     if not loops:
         return triangles
     # Only edges and triangles among the small loops' vertices matter below: sets of those

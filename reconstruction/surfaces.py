@@ -79,7 +79,9 @@ class SurfaceConfig:
     # Holes whose boundary fits in a sphere of this radius are closed: at 1 mm fused voxels the
     # data cannot show a hole that small, so it is a meshing artefact (Poisson leaves such
     # loops where its trimming cuts a single triangle out), not a feature of the object.
-    fill_holes_max_radius_m: float = non_negative(0.001)
+    # 1.5 mm: Poisson's cells are ~1.06 mm at depth 8 on a 0.2 m object, and a hole bounded
+    # by four of their edges reached 1.01 mm (a two-hanging closed model left open at 1 mm).
+    fill_holes_max_radius_m: float = non_negative(0.0015)
     # RBF implicit surface ("rbf", reconstruction/surface_rbf.py). Centres: the fused cloud
     # thinned to 2 mm voxels (at most rbf_max_centres; the spacing grows beyond), each with
     # points rbf_offset_m along and against its normal. Measured on the 24-view bunny

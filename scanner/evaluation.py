@@ -112,11 +112,13 @@ def hangings_report(
     return out
 
 
-def evaluate(result: ReconstructionResult, truth, surface, eyes, samples: int) -> dict:
-    """Metrics of every surface against the truth, and the hand-eye error before/after."""
+def evaluate(
+    result: ReconstructionResult, truth, surface, samples: int, truth_samples
+) -> dict:
+    """Metrics of every surface against the truth (`truth_samples`: from `observed_samples`),
+    and the hand-eye error before/after."""
     out: dict = {"surfaces": {}}
     results = {name: TriangleSurface(m.vertices, m.triangles) for name, m in result.meshes.items()}
-    truth_samples = truth_sampling(surface, eyes, samples)
     for name, mesh in results.items():
         out["surfaces"][name] = evaluate_surface(
             None, surface, result_mesh=mesh, n_samples=samples, truth_samples=truth_samples
@@ -132,12 +134,23 @@ def evaluate(result: ReconstructionResult, truth, surface, eyes, samples: int) -
     return out
 
 
-def truth_metrics(result, views: Gathered, processing: ProcessingConfig, to_first) -> dict:
-    """The report's accuracy keys (against the first scan's truth, in its first hanging's
-    frame): the primary surface's metrics first, then all of them."""
+def observed_samples(views: Gathered, processing: ProcessingConfig, to_first):
+    """Samples of the first scan's true surface and which of them the true views saw: needs
+    only the truth, so it can be computed while the views are registered."""
     eyes = list(_true_eyes(views, to_first).values())
+    return truth_sampling(views.truths[0][1], eyes, processing.metric_samples)
+
+
+def truth_metrics(
+    result, views: Gathered, processing: ProcessingConfig, to_first, truth_samples=None
+) -> dict:
+    """The report's accuracy keys (against the first scan's truth, in its first hanging's
+    frame): the primary surface's metrics first, then all of them. `truth_samples`: from
+    `observed_samples`, when already computed."""
     truth = views.truths[0]
-    metrics = evaluate(result, truth[0], truth[1], eyes, processing.metric_samples)
+    if truth_samples is None:
+        truth_samples = observed_samples(views, processing, to_first)
+    metrics = evaluate(result, truth[0], truth[1], processing.metric_samples, truth_samples)
     primary = metrics["surfaces"].get(processing.primary_surface)
     if primary is None:
         raise ScannerError(

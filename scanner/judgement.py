@@ -52,7 +52,7 @@ FIGURES: dict[str, Figure] = {
     "fscore_observed_1mm": Figure(
         "F-score at 1 mm, observed",
         "",
-        "harmonic mean of precision and recall at 1 mm, on the surface some camera saw",
+        "harmonic mean of precision and recall at 1 mm, on the surface some view saw",
         0.9,
         0.7,
         True,
@@ -68,8 +68,9 @@ FIGURES: dict[str, Figure] = {
     "observed_fraction": Figure(
         "observed fraction",
         "",
-        "share of the true surface some camera had in view (unoccluded, within 80 deg of "
-        "facing it); the rest cannot be in the model",
+        "share of the true surface both cameras of some view had in view (unoccluded, "
+        "within 80 deg of facing each); stereo measures nothing else, so the rest cannot be "
+        "in the model",
         0.95,
         0.8,
         True,
@@ -107,7 +108,8 @@ FIGURES: dict[str, Figure] = {
     "coverage_estimate": Figure(
         "coverage estimate (no truth)",
         "",
-        "share of the model's closed surface some camera had in view, judged from the data alone",
+        "share of the model's closed surface both cameras of some view had in view, judged "
+        "from the data alone",
         0.95,
         0.8,
         True,

@@ -17,6 +17,7 @@ import json
 import logging
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,7 +34,12 @@ from reconstruction.pipeline import ReconstructionResult, reconstruct_views
 from reconstruction.stage_timer import StageTimer
 from scanner.captures import atomic_write_text
 from scanner.config import ProcessingConfig
-from scanner.evaluation import hangings_report, to_first_hanging, truth_metrics
+from scanner.evaluation import (
+    hangings_report,
+    observed_samples,
+    to_first_hanging,
+    truth_metrics,
+)
 from scanner.manifest import SavedScan, open_scan
 from scanner.results_folder import free_results_dir, holds_result, staged_folder
 from scanner.scan_views import gather_views, with_roi_centre
@@ -214,10 +220,20 @@ def _reconstruct(
         )
     X_FC = first.X_FC_nominal if X_FC is None else X_FC
     hangings = views.hangings if len(views.hangings) > 1 else None
-    with timer("reconstruct"):
-        result = reconstruct_views(
-            views.views, X_FC, config, views.remove, hangings, filtered, on_stage
+    to_first = to_first_hanging(views)
+    with ThreadPoolExecutor(max_workers=1) as beside:
+        # The truth's side of the evaluation (ray casting from every true view) needs no
+        # result: it runs while the views are registered, which leaves a core idle at times.
+        sampling = (
+            beside.submit(observed_samples, views, processing, to_first)
+            if to_first is not None
+            else None
         )
+        with timer("reconstruct"):
+            result = reconstruct_views(
+                views.views, X_FC, config, views.remove, hangings, filtered, on_stage
+            )
+        truth_samples = sampling.result() if sampling is not None else None
 
     report: dict = {
         "captures_used": len(views.views),
@@ -240,10 +256,9 @@ def _reconstruct(
             "filled_area_m2": closed.filled_area_m2,
         }
     truth = views.truths[0]
-    to_first = to_first_hanging(views)
     if to_first is not None:
         with timer("evaluate"):
-            report.update(truth_metrics(result, views, processing, to_first))
+            report.update(truth_metrics(result, views, processing, to_first, truth_samples))
     if hangings:
         voxel = config.surfaces.fused_voxel_size_m
         report.update(hangings_report(result, views, to_first, voxel, eyes))
