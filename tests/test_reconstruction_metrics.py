@@ -101,16 +101,21 @@ def test_visible_fraction_of_a_sphere_from_far_away():
     np.testing.assert_array_equal(both, seen | down)
 
 
-def test_occluded_samples_are_not_visible():
-    # A small square hides the part of the big one right behind it from a camera above.
+def _square_under_occluder(size_m: float, corner_m) -> tuple[TriangleSurface, TriangleSurface]:
+    """The 0.1 m square, and it together with a smaller square (side size_m, lower corner at
+    corner_m) above it."""
     big = _square(0.1)
-    small = TriangleSurface(
-        _square(0.02).vertices + [0.04, 0.04, 0.05], np.array([[0, 1, 2], [0, 2, 3]])
-    )
+    small = TriangleSurface(_square(size_m).vertices + corner_m, np.array([[0, 1, 2], [0, 2, 3]]))
     both = TriangleSurface(
         np.vstack([big.vertices, small.vertices]),
         np.vstack([big.triangles, small.triangles + 4]),
     )
+    return big, both
+
+
+def test_occluded_samples_are_not_visible():
+    # A small square hides the part of the big one right behind it from a camera above.
+    big, both = _square_under_occluder(0.02, [0.04, 0.04, 0.05])
     s = sample_surface(big, 5000, seed=3)
     seen = visible_mask(s, both, [np.array([0.05, 0.05, 1000.0])])
     behind = np.all((s.points[:, :2] > 0.0401) & (s.points[:, :2] < 0.0599), axis=1)
@@ -122,14 +127,7 @@ def test_a_stereo_view_sees_only_what_both_of_its_cameras_see():
     # The small square (0.1 m above) hides a patch of the big one from each eye; the patches
     # are 22 mm apart (eyes 0.2 m apart, 1 m above), so a stereo view misses both while either
     # eye alone misses one.
-    big = _square(0.1)
-    small = TriangleSurface(
-        _square(0.01).vertices + [0.045, 0.045, 0.1], np.array([[0, 1, 2], [0, 2, 3]])
-    )
-    both = TriangleSurface(
-        np.vstack([big.vertices, small.vertices]),
-        np.vstack([big.triangles, small.triangles + 4]),
-    )
+    big, both = _square_under_occluder(0.01, [0.045, 0.045, 0.1])
     s = sample_surface(big, 20_000, seed=4)
     left, right = np.array([-0.05, 0.05, 1.0]), np.array([0.15, 0.05, 1.0])
     seen_left = visible_mask(s, both, [left])
