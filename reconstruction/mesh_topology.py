@@ -203,15 +203,20 @@ def _vtk_fill(
     return filled
 
 
+def _loop_labels(n_vertices: int, boundary: np.ndarray) -> np.ndarray:
+    """Per vertex, the label of the boundary loop (connected boundary edges) it is on."""
+    n = n_vertices
+    graph = coo_matrix((np.ones(len(boundary)), (boundary[:, 0], boundary[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
 def _small_loops(vertices: np.ndarray, triangles: np.ndarray, max_radius_m: float) -> list:
     """The boundary loops (each its (K, 2) edges) that fit in a sphere of max_radius_m."""
     use = _edge_use(triangles)
     boundary = use.edges[use.uses == 1]
     if not len(boundary):
         return []
-    n = len(vertices)
-    graph = coo_matrix((np.ones(len(boundary)), (boundary[:, 0], boundary[:, 1])), shape=(n, n))
-    _, label = connected_components(graph, directed=False)
+    label = _loop_labels(len(vertices), boundary)
     loops = []
     for loop_label in np.unique(label[boundary[:, 0]]):
         edges = boundary[label[boundary[:, 0]] == loop_label]
@@ -342,9 +347,7 @@ def mesh_quality(mesh) -> MeshQuality:
 def _boundary_loops(vertices: np.ndarray, boundary: np.ndarray) -> tuple[float, ...]:
     if not len(boundary):
         return ()
-    n = len(vertices)
-    graph = coo_matrix((np.ones(len(boundary)), (boundary[:, 0], boundary[:, 1])), shape=(n, n))
-    _, label = connected_components(graph, directed=False)
+    label = _loop_labels(len(vertices), boundary)
     length = np.linalg.norm(vertices[boundary[:, 0]] - vertices[boundary[:, 1]], axis=1)
     perimeter = np.bincount(label[boundary[:, 0]], weights=length)
     return tuple(float(p) for p in sorted(perimeter[perimeter > 0], reverse=True))
