@@ -78,9 +78,22 @@ def decoded_sixteenths(raw: np.ndarray) -> np.ndarray:
     return raw.astype(np.float32) + _SUBPIXEL_CORRECTION_SIXTEENTHS[np.mod(raw, SGBM_SCALE)]
 
 
+def equiangular_px(parabolic_px: np.ndarray) -> np.ndarray:
+    """Disparities (px) whose sub-pixel offsets came from a parabola fit -> the offsets of the
+    equiangular (V-shaped) fit to the same three costs.
+
+    Costs that rise linearly on either side of a true offset t in [-1/2, 1/2] give the parabola
+    p = t / (2 (1 - |t|)), pulled towards the whole pixel; inverted, t = 2 p / (1 + 2 |p|).
+    Whole and half pixels stay; the order of disparities is kept.
+    """
+    whole = np.round(parabolic_px)
+    p = parabolic_px - whole
+    return (whole + 2 * p / (1 + 2 * np.abs(p))).astype(np.float32)
+
+
 def _sgbm(left, right, min_disparity, num_disparities, params: StereoParams) -> np.ndarray:
-    """SGBM in pixels (sub-pixel rounding bias removed: decoded_sixteenths), NaN where SGBM found
-    nothing.
+    """SGBM in pixels (sub-pixel rounding bias removed: decoded_sixteenths; offsets re-read by
+    `params.subpixel_fit`), NaN where SGBM found nothing.
 
     Left columns below min_disparity can only match outside the right image and right columns
     beyond width - min_disparity only left pixels outside the left image, so both are cropped
@@ -105,7 +118,10 @@ def _sgbm(left, right, min_disparity, num_disparities, params: StereoParams) -> 
     raw = matcher.compute(left[:, shift:], right[:, : width - shift])
     disparity = np.full((height, width), np.nan, np.float32)
     found = raw >= (min_disparity - shift) * SGBM_SCALE
-    disparity[:, shift:][found] = decoded_sixteenths(raw[found]) / SGBM_SCALE + shift
+    decoded = decoded_sixteenths(raw[found]) / SGBM_SCALE + shift
+    if params.subpixel_fit == "equiangular":
+        decoded = equiangular_px(decoded)
+    disparity[:, shift:][found] = decoded
     return disparity
 
 
