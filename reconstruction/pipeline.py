@@ -53,6 +53,7 @@ from reconstruction.surfaces import (
     SurfaceInput,
     SurfaceMesh,
     fuse_clouds,
+    refine_fused,
     surface_from,
 )
 from reconstruction.transforms import check_pose
@@ -183,6 +184,8 @@ def build_surfaces(
     notes = []
     with timer("fuse"):
         fused = fuse_clouds(clouds, X_WC, config.surfaces.fused_voxel_size_m)
+        surfaces = config.surfaces
+        fused = refine_fused(fused, surfaces.fused_normal_radius_m, surfaces.fused_outlier_sigmas)
     depth_views = [
         DepthView(v.depth, X, v.index) for v, X in zip(views, X_WC) if v.depth is not None
     ]
