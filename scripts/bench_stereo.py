@@ -63,6 +63,9 @@ def main() -> None:
     parser.add_argument("--object", default="vase")
     parser.add_argument("--views", type=int, default=6)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--mode", default=None, help="SGBM mode instead of the default StereoParams().mode"
+    )
     args = parser.parse_args()
 
     sim = create_simulation(WorkcellConfig(), args.object, ErrorModel(seed=args.seed))
@@ -71,7 +74,7 @@ def main() -> None:
         raise SystemExit(f"only {len(views)} reachable views")
     rect = compute_rectification(sim.truth.stereo)
     window = object_depth_window(RADIUS_M, keep_out_radius_m(sim.workcell.config))
-    params = StereoParams()
+    params = StereoParams() if args.mode is None else StereoParams(mode=args.mode)
 
     errors, valid, valid_both, background, seconds = [], [], [], [], []
     for i, q in enumerate(views):

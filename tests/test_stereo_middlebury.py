@@ -42,5 +42,5 @@ def test_bad_pixel_rate_within_the_opencv_reference(scene):
     bad = 100 * wrong[valid].mean()
     bad_with_holes = 100 * (wrong | ~np.isfinite(disparity))[evaluated].mean()
     assert valid.sum() > 0.9 * evaluated.sum()  # measured: 0.974 (tsukuba), 0.911 (venus)
-    assert bad <= ref_bad + ALLOWED_EXCESS_PERCENT  # measured: 4.8 %, 1.5 %
-    assert bad_with_holes <= ref_bad_holes + ALLOWED_EXCESS_PERCENT  # measured: 6.7 %, 5.2 %
+    assert bad <= ref_bad + ALLOWED_EXCESS_PERCENT  # measured: 4.76 %, 1.47 %
+    assert bad_with_holes <= ref_bad_holes + ALLOWED_EXCESS_PERCENT  # measured: 7.3 %, 10.3 %

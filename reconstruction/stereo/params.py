@@ -60,7 +60,14 @@ class StereoParams:
     # at least 1 px even when asked to switch it off, measured; so 0 is refused).
     disp12_max_diff_px: int = integer(1)
     # "SGBM" (5 directions), "HH" (8 directions, full-image memory), "HH4" or "3WAY" (fastest);
-    # 3WAY by measurement (module docstring).
+    # 3WAY by measurement (module docstring). 3WAY and SGBM aggregate their cost paths from the
+    # rows above only: where the disparity changes down the image their match lags by about a
+    # row (-0.04 px at 0.04 px per row; HH4 and HH under 0.006 px, tests/test_sgbm_subpixel.py),
+    # which views from all around do not average out. Measured with HH4 instead (24 views,
+    # observed Chamfer mm): fandisk 0.217 -> 0.174 (its model sat 0.14 mm inside the part),
+    # bunny 0.159 -> 0.156, teapot 0.169 -> 0.164; but 2.2x the time (0.57 -> 1.27 s a pair on
+    # the slow shared machine) and on Middlebury Venus 1 % fewer pixels (bad or missing
+    # 10.3 -> 11.4 %, above the test's 11 %), so not the default yet.
     mode: str = "3WAY"
     # SGBM's sub-pixel step fits a parabola to the three costs around the best whole
     # disparity; its costs rise about linearly on either side of the minimum, so the parabola
