@@ -140,7 +140,12 @@ def coarse_handeye(
         twist = np.zeros(6)
         twist[axis // 2] = config.restart_angle_rad * (1 if axis % 2 == 0 else -1)
         start = X_FC_nominal @ twist_to_pose(twist)
-        fit = refine_on_clouds(clouds, X_WF, pairs, start, config.fit(seed))
+        try:
+            fit = refine_on_clouds(clouds, X_WF, pairs, start, config.fit(seed))
+        except ScannerError:
+            # A turned start can carry the views apart until nothing overlaps: a failed
+            # restart, not a failed reconstruction (the fit from the nominal start stands).
+            continue
         if fit.match_fraction > best.match_fraction:
             best = fit
     return best

@@ -155,6 +155,30 @@ def test_coarse_stage_finds_a_rough_mount_and_the_fine_fit_finishes_it(rough_mou
     assert verdict.converged, verdict.failures
 
 
+def test_a_restart_that_loses_all_overlap_is_skipped_not_fatal(rough_mount_scan, monkeypatch):
+    # From a turned start the fit can carry the views apart until no match is left (seen on a
+    # 3-view scan); the coarse stage then keeps its other fits instead of failing the scan.
+    import reconstruction.handeye_basin as basin
+
+    scan, clouds = rough_mount_scan
+    X_WF = [v.X_WF for v in scan.views]
+    everything = [list(range(len(clouds)))]
+    calls = []
+    real_fit = basin.refine_on_clouds
+
+    def fit_losing_overlap_on_restarts(clouds, X_WF, pairs, start, settings):
+        calls.append(start)
+        if len(calls) > 1:
+            raise ScannerError("hand-eye refinement: the views do not overlap")
+        fit = real_fit(clouds, X_WF, pairs, start, settings)
+        return replace(fit, match_fraction=0.0)  # poor: every restart is tried
+
+    monkeypatch.setattr(basin, "refine_on_clouds", fit_losing_overlap_on_restarts)
+    coarse = coarse_handeye(clouds, X_WF, everything, scan.X_FC_nominal, CoarseHandEyeConfig())
+    assert len(calls) == 7  # the nominal start and six turned ones
+    assert coarse is not None and coarse.match_fraction == 0.0
+
+
 def test_a_fit_stuck_far_from_the_truth_is_diagnosed(rough_mount_scan):
     """A fit with only narrow gates from 40 mm / 10 deg ends in a wrong X_FC; the diagnosis
     must say so without the truth."""
