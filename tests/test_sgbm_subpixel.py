@@ -87,6 +87,26 @@ def test_decoding_removes_the_bias_of_opencvs_arithmetic(d_px):
     assert np.max(np.abs(error)) <= 1.0
 
 
+def _textured_left(seed: int):
+    """A blurred-noise left image (grey levels 128 +- 45) and its pixel grids x, y."""
+    rng = np.random.default_rng(seed)
+    texture = cv2.GaussianBlur(
+        rng.normal(size=(HEIGHT_PX, WIDTH_PX)).astype(np.float32), (0, 0), 1.2
+    )
+    texture = (texture - texture.mean()) / texture.std()
+    left = np.clip(128 + 45 * texture, 0, 255).astype(np.uint8)
+    x, y = np.meshgrid(
+        np.arange(WIDTH_PX, dtype=np.float32), np.arange(HEIGHT_PX, dtype=np.float32)
+    )
+    return left, x, y
+
+
+def _inner() -> np.ndarray:
+    inner = np.zeros((HEIGHT_PX, WIDTH_PX), bool)
+    inner[BORDER_PX:-BORDER_PX, BORDER_PX:-BORDER_PX] = True
+    return inner
+
+
 @functools.cache
 def _slanted_pair(d_left_edge_px: float, d_right_edge_px: float, seed: int = 0):
     """A rectified pair of a textured plane slanted along the rows, and its true disparity.
@@ -97,24 +117,14 @@ def _slanted_pair(d_left_edge_px: float, d_right_edge_px: float, seed: int = 0):
     aggregate costs along paths that come from the rows above, which drags a disparity that
     changes down the image towards its value a row or two higher, a separate signed effect.
     """
-    rng = np.random.default_rng(seed)
-    texture = cv2.GaussianBlur(
-        rng.normal(size=(HEIGHT_PX, WIDTH_PX)).astype(np.float32), (0, 0), 1.2
-    )
-    texture = (texture - texture.mean()) / texture.std()
-    left = np.clip(128 + 45 * texture, 0, 255).astype(np.uint8)
-    x, y = np.meshgrid(
-        np.arange(WIDTH_PX, dtype=np.float32), np.arange(HEIGHT_PX, dtype=np.float32)
-    )
+    left, x, y = _textured_left(seed)
     slope = (d_right_edge_px - d_left_edge_px) / WIDTH_PX
     right = cv2.remap(
         left, x + d_left_edge_px + slope * x, y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
     )
     # Left pixel u matches the right pixel x with x + d(x) = u.
     truth = x - (x - d_left_edge_px) / (1 + slope)
-    inner = np.zeros((HEIGHT_PX, WIDTH_PX), bool)
-    inner[BORDER_PX:-BORDER_PX, BORDER_PX:-BORDER_PX] = True
-    return left, right, truth, inner
+    return left, right, truth, _inner()
 
 
 def _mean_error_px(disparity: np.ndarray, truth: np.ndarray, inner: np.ndarray) -> float:
@@ -205,20 +215,10 @@ def test_equiangular_reading_weakens_pixel_locking(mode):
 @functools.cache
 def _pair_slanted_down_the_image(d_top_px: float, d_bottom_px: float, seed: int = 0):
     """A rectified pair of a textured plane whose disparity changes down the image only."""
-    rng = np.random.default_rng(seed)
-    texture = cv2.GaussianBlur(
-        rng.normal(size=(HEIGHT_PX, WIDTH_PX)).astype(np.float32), (0, 0), 1.2
-    )
-    texture = (texture - texture.mean()) / texture.std()
-    left = np.clip(128 + 45 * texture, 0, 255).astype(np.uint8)
-    x, y = np.meshgrid(
-        np.arange(WIDTH_PX, dtype=np.float32), np.arange(HEIGHT_PX, dtype=np.float32)
-    )
+    left, x, y = _textured_left(seed)
     truth = d_top_px + (d_bottom_px - d_top_px) * y / HEIGHT_PX
     right = cv2.remap(left, x + truth, y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
-    inner = np.zeros((HEIGHT_PX, WIDTH_PX), bool)
-    inner[BORDER_PX:-BORDER_PX, BORDER_PX:-BORDER_PX] = True
-    return left, right, truth, inner
+    return left, right, truth, _inner()
 
 
 @pytest.mark.parametrize("d_range_px", [(20, 40), (40, 20)])
