@@ -56,8 +56,8 @@ class SurfaceConfig:
     # normals, and points farther from theirs than fused_outlier_sigmas robust standard
     # deviations of all such distances are dropped (0 = none). Measured on the 24-view bunny,
     # observed Chamfer (mm): views' normals 0.1745; planes over 3 / 4 mm 0.1746 / 0.1704;
-    # with the drop at 2.5 sigma (~0.7 mm, ~8 % of the points) 0.1588; fandisk 0.2276 -> 0.2170,
-    # teapot 0.1838 (planes alone) -> 0.1694.
+    # with the drop at 2.5 sigma (~0.7 mm, ~8 % of the points) 0.1592; fandisk 0.2276 -> 0.2168,
+    # teapot 0.1838 (planes alone) -> 0.1736, spot 0.1781.
     fused_normal_radius_m: float = non_negative(0.004)
     fused_outlier_sigmas: float = non_negative(2.5)
     # Depth 8: cells of about 1 mm over a 0.2 m object, the fused cloud's own spacing. Depth 9
