@@ -14,7 +14,12 @@ import numpy as np
 import pytest
 
 import reconstruction.stereo.matching as matching
-from reconstruction.stereo.matching import compute_disparity, decoded_sixteenths, equiangular_px
+from reconstruction.stereo.matching import (
+    compute_disparity,
+    decoded_sixteenths,
+    equiangular_px,
+    with_upward_pass,
+)
 
 WIDTH_PX, HEIGHT_PX = 640, 480
 # Columns left of the largest disparity have no match; a margin on the other sides keeps
@@ -222,15 +227,50 @@ def _pair_slanted_down_the_image(d_top_px: float, d_bottom_px: float, seed: int 
 
 
 @pytest.mark.parametrize("d_range_px", [(20, 40), (40, 20)])
-def test_only_the_two_pass_modes_follow_a_disparity_that_changes_down_the_image(d_range_px):
+def test_a_disparity_that_changes_down_the_image_is_followed_by_default(d_range_px):
     left, right, truth, inner = _pair_slanted_down_the_image(*d_range_px)
-    for mode in ("HH4", "HH"):
+    for mode in ("HH4", "HH", "3WAY", "SGBM"):
         error = _mean_error_px(compute_disparity(left, right, 16, 32, mode=mode), truth, inner)
-        # Measured: -0.001 px (seed 1: -0.006 / -0.005).
+        # Measured: HH4 -0.001 px (seed 1: -0.006 / -0.005); 3WAY and SGBM with their
+        # upside-down pass -0.001 / +0.002 px.
         assert abs(error) < 0.015, mode
+
+
+@pytest.mark.parametrize("d_range_px", [(20, 40), (40, 20)])
+def test_one_way_modes_lag_behind_without_the_upward_pass(d_range_px):
+    left, right, truth, inner = _pair_slanted_down_the_image(*d_range_px)
     # 3WAY's and SGBM's paths come from the rows above only: their match lags by about a row
     # (measured 3WAY -0.038 / +0.037 px, SGBM -0.067 / +0.065 px at 0.042 px per row), with the
-    # sign of the change.
+    # sign of the change. This is what the upward pass cancels.
     for mode in ("3WAY", "SGBM"):
-        error = _mean_error_px(compute_disparity(left, right, 16, 32, mode=mode), truth, inner)
+        disparity = compute_disparity(left, right, 16, 32, mode=mode, upward_pass=False)
+        error = _mean_error_px(disparity, truth, inner)
         assert error * np.sign(d_range_px[1] - d_range_px[0]) < -0.025, mode
+
+
+def test_the_two_passes_are_averaged_and_marked_where_they_agree():
+    nan = np.nan
+    downward = np.array([[10.0, 10.0, nan, 10.0, nan]], np.float32)
+    upward = np.array([[10.4, 13.0, 11.0, nan, nan]], np.float32)
+    merged, agreed = with_upward_pass(downward, upward)
+    # Agreeing: the mean; disagreeing: the usual pass; one missing: the other; both: none.
+    np.testing.assert_allclose(merged[0, :4], [10.2, 10.0, 11.0, 10.0])
+    assert np.isnan(merged[0, 4])
+    assert agreed.tolist() == [[True, False, False, False, False]]
+
+
+def test_pixels_where_the_passes_disagree_are_dropped_after_the_filters(monkeypatch):
+    left, _, _, inner = _slanted_pair(20, 40)
+    downward = np.full(left.shape, 30.0, np.float32)
+    upward = downward.copy()
+    upward[100:140, 100:140] = 33.0  # disagrees by 3 px
+    upward[200:240, 200:240] = np.nan  # the upward pass found nothing
+    passes = iter([downward, upward[::-1]])  # the upward pass sees the pair upside down
+    monkeypatch.setattr(matching, "_sgbm", lambda *args: next(passes).copy())
+    disparity = compute_disparity(left, left, 16, 32)
+    dropped = np.zeros(left.shape, bool)
+    dropped[100:140, 100:140] = dropped[200:240, 200:240] = True
+    assert np.isnan(disparity[dropped]).all()
+    # Everywhere else the textured pair keeps the common value.
+    assert np.nanmax(np.abs(disparity[inner & ~dropped] - 30.0)) == 0
+    assert np.isfinite(disparity[inner & ~dropped]).mean() > 0.99

@@ -20,7 +20,10 @@ SCENES = {
 # The README ignores about d_max columns at the left border: no match can exist there.
 LEFT_BORDER_PX = 20
 BAD_PX = 1.0
-ALLOWED_EXCESS_PERCENT = 1.0
+# The default drops pixels where its two matching passes (cost paths from above, from below)
+# disagree; about half of them are wrong on Tsukuba. So wrong pixels must stay at or below the
+# reference's, while holes, counted as wrong in the second rate, may cost a little more.
+ALLOWED_EXCESS_HOLES_PERCENT = 1.5
 
 
 def _rgb(path):
@@ -41,6 +44,7 @@ def test_bad_pixel_rate_within_the_opencv_reference(scene):
     wrong = np.abs(disparity - gt) > BAD_PX
     bad = 100 * wrong[valid].mean()
     bad_with_holes = 100 * (wrong | ~np.isfinite(disparity))[evaluated].mean()
-    assert valid.sum() > 0.9 * evaluated.sum()  # measured: 0.974 (tsukuba), 0.911 (venus)
-    assert bad <= ref_bad + ALLOWED_EXCESS_PERCENT  # measured: 4.76 %, 1.47 %
-    assert bad_with_holes <= ref_bad_holes + ALLOWED_EXCESS_PERCENT  # measured: 7.3 %, 10.3 %
+    assert valid.sum() > 0.9 * evaluated.sum()  # measured: 0.959 (tsukuba), 0.902 (venus)
+    assert bad <= ref_bad  # measured: 3.87 %, 1.51 % (one pass: 4.76 %, 1.47 %)
+    # Measured: 7.8 %, 11.2 % (one pass: 7.3 %, 10.3 %).
+    assert bad_with_holes <= ref_bad_holes + ALLOWED_EXCESS_HOLES_PERCENT

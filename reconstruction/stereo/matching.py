@@ -17,7 +17,13 @@ from reconstruction.stereo.filters import (
     supported_low_texture,
     texture_mask,
 )
-from reconstruction.stereo.params import SGBM_MODES, SGBM_SCALE, StereoParams, stereo_params
+from reconstruction.stereo.params import (
+    SGBM_MODES,
+    SGBM_SCALE,
+    UPWARD_PASS_AGREEMENT_PX,
+    StereoParams,
+    stereo_params,
+)
 
 
 def _check_image(image: np.ndarray, name: str) -> None:
@@ -91,6 +97,10 @@ def equiangular_px(parabolic_px: np.ndarray) -> np.ndarray:
     return (whole + 2 * p / (1 + 2 * np.abs(p))).astype(np.float32)
 
 
+# Modes whose vertical cost paths come from the rows above only.
+ONE_WAY_MODES = ("3WAY", "SGBM")
+
+
 def _sgbm(left, right, min_disparity, num_disparities, params: StereoParams) -> np.ndarray:
     """SGBM in pixels (sub-pixel rounding bias removed: decoded_sixteenths; offsets re-read by
     `params.subpixel_fit`), NaN where SGBM found nothing.
@@ -125,6 +135,39 @@ def _sgbm(left, right, min_disparity, num_disparities, params: StereoParams) -> 
     return disparity
 
 
+def with_upward_pass(downward: np.ndarray, upward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(disparity, agreed) from a pass whose vertical cost paths come from above and one whose
+    paths come from below (NaN = no match). The disparity is their mean where both agree within
+    UPWARD_PASS_AGREEMENT_PX, else the downward pass's value, else the upward one's; `agreed`
+    marks the pixels of the mean.
+
+    Where the disparity changes down the image, a one-way pass lags about a row behind it
+    (-0.04 px at 0.04 px per row on a textured plane, -0.2 px at 0.15 px per row on simulated
+    views) and the other pass lags by as much the other way. Where the passes disagree (by more
+    than 1 px) or only one matched, 40-75 % of the pixels are more than 1 px off on simulated
+    views (Middlebury Tsukuba 44-60 %, Venus 11-30 %), against 2-5 % (1.4-3.4 %) where they
+    agree.
+    """
+    both = np.isfinite(downward) & np.isfinite(upward)
+    with np.errstate(invalid="ignore"):
+        agreed = both & (np.abs(downward - upward) <= UPWARD_PASS_AGREEMENT_PX)
+    merged = np.where(np.isfinite(downward), downward, upward)
+    merged[agreed] = 0.5 * (downward[agreed] + upward[agreed])
+    return merged.astype(np.float32), agreed
+
+
+def _matched(
+    left, right, min_disparity, num_disparities, params: StereoParams
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """_sgbm, with the upside-down pass for the one-way modes (`with_upward_pass`): the
+    disparity and the pixels where both passes agreed (None: a single pass)."""
+    downward = _sgbm(left, right, min_disparity, num_disparities, params)
+    if not params.upward_pass or params.mode not in ONE_WAY_MODES:
+        return downward, None
+    upward = _sgbm(left[::-1].copy(), right[::-1].copy(), min_disparity, num_disparities, params)
+    return with_upward_pass(downward, upward[::-1])
+
+
 def compute_disparity(
     left: np.ndarray, right: np.ndarray, min_disparity: int, num_disparities: int, **params
 ) -> np.ndarray:
@@ -156,18 +199,18 @@ def disparity_image(
             f"a {width} px wide image: no pixel could be matched (use a farther depth window)"
         )
     grey_left, grey_right = grey_image(left, "left"), grey_image(right, "right")
-    disparity = _sgbm(grey_left, grey_right, int(min_disparity), num_disparities, params)
+    disparity, agreed = _matched(grey_left, grey_right, int(min_disparity), num_disparities, params)
     keep = np.isfinite(disparity)
     if params.lr_check_max_diff_px is not None:
         # Right-referenced disparity: mirror both images and swap them.
-        mirrored = _sgbm(
+        mirrored, _ = _matched(
             grey_right[:, ::-1].copy(),
             grey_left[:, ::-1].copy(),
             int(min_disparity),
             num_disparities,
             params,
-        )[:, ::-1]
-        keep &= left_right_mask(disparity, mirrored, params.lr_check_max_diff_px)
+        )
+        keep &= left_right_mask(disparity, mirrored[:, ::-1], params.lr_check_max_diff_px)
     disparity[~keep] = np.nan
     if params.texture_min_std_levels > 0 and params.low_texture == "reject":
         disparity[
@@ -188,4 +231,8 @@ def disparity_image(
         ] = np.nan
     if params.max_jump_px > 0:
         disparity[~jump_mask(disparity, params.jump_window_px, params.max_jump_px)] = np.nan
+    if agreed is not None:
+        # Only now: the low-texture filter judges support on the passes' full coverage, so
+        # that these holes do not grow into its background bands.
+        disparity[~agreed] = np.nan
     return disparity

@@ -32,6 +32,10 @@ SGBM_MODES = {
 }
 LOW_TEXTURE_POLICIES = ("supported", "reject")
 SUBPIXEL_FITS = ("equiangular", "parabola")
+# Where the two passes (`StereoParams.upward_pass`) differ by more than this, the pixel is
+# dropped. 1 px dropped more of the grazing surfaces than it saved (24-view spot: observed
+# Chamfer 0.201 mm, completeness 0.972; 2 px: 0.193 mm, 0.978; one pass 0.178 mm, 0.985).
+UPWARD_PASS_AGREEMENT_PX = 2.0
 # OpenCV returns fixed-point disparities with 4 fractional bits.
 SGBM_SCALE = 16
 
@@ -62,13 +66,20 @@ class StereoParams:
     # "SGBM" (5 directions), "HH" (8 directions, full-image memory), "HH4" or "3WAY" (fastest);
     # 3WAY by measurement (module docstring). 3WAY and SGBM aggregate their cost paths from the
     # rows above only: where the disparity changes down the image their match lags by about a
-    # row (-0.04 px at 0.04 px per row; HH4 and HH under 0.006 px, tests/test_sgbm_subpixel.py),
-    # which views from all around do not average out. Measured with HH4 instead (24 views,
-    # observed Chamfer mm): fandisk 0.217 -> 0.174 (its model sat 0.14 mm inside the part),
-    # bunny 0.159 -> 0.156, teapot 0.169 -> 0.164; but 2.2x the time (0.57 -> 1.27 s a pair on
-    # the slow shared machine) and on Middlebury Venus 1 % fewer pixels (bad or missing
-    # 10.3 -> 11.4 %, above the test's 11 %), so not the default yet.
+    # row (-0.04 px at 0.04 px per row, tests/test_sgbm_subpixel.py), which views from all
+    # around do not average out (the fandisk's model sat 0.14 mm inside the part). upward_pass
+    # cancels it; HH4 does too, at 2.2x the time of 3WAY with it.
     mode: str = "3WAY"
+    # 3WAY and SGBM: also match the pair turned upside down, whose vertical paths come from
+    # below and lag the other way; keep the mean of the two where they agree within
+    # UPWARD_PASS_AGREEMENT_PX and drop the other pixels, of which about half are wrong
+    # (`matching.with_upward_pass`). Measured, 24-view scans, observed Chamfer / p90 in mm:
+    # bunny 0.159 / 0.313 -> 0.149 / 0.261, fandisk 0.217 / 0.370 -> 0.169 / 0.263, teapot
+    # 0.174 / 0.367 -> 0.176 / 0.292, spot 0.178 / 0.283 -> 0.193 / 0.218 (it loses some
+    # grazing surface: completeness 0.985 -> 0.978). Middlebury Tsukuba: bad pixels
+    # 4.76 -> 3.87 %, density 0.973 -> 0.959; Venus 1.47 -> 1.51 %, 0.911 -> 0.902. Twice the
+    # matching time (HH4, the other way to cancel the lag: 4.2x).
+    upward_pass: bool = True
     # SGBM's sub-pixel step fits a parabola to the three costs around the best whole
     # disparity; its costs rise about linearly on either side of the minimum, so the parabola
     # pulls offsets towards whole pixels (pixel locking: +-0.07 px on a textured slanted plane).
@@ -116,6 +127,10 @@ class StereoParams:
         require_choice("stereo", "mode", self.mode, SGBM_MODES)
         require_choice("stereo", "subpixel_fit", self.subpixel_fit, SUBPIXEL_FITS)
         require_choice("stereo", "low_texture", self.low_texture, LOW_TEXTURE_POLICIES)
+        if not isinstance(self.upward_pass, bool):
+            raise ScannerError(
+                f"stereo.upward_pass: must be true or false, got {self.upward_pass!r}"
+            )
         for name in (
             "block_size_px",
             "texture_window_px",
