@@ -8,8 +8,11 @@ object pixels valid, seconds per pair including rectification and reprojection):
     mode HH4   0.17 mm / 0.74 mm, 0.90 valid, 0.52 s
     mode HH    0.15 mm / 0.61 mm, 0.88 valid, 0.95 s
 3WAY is the only mode inside the 0.4 s budget and meets the accuracy targets (median 0.5 mm,
-p90 2 mm); block 3 keeps 2 % more object pixels than block 5 on slanted surfaces at the same
-accuracy; a full second left-right pass costs 0.12 s and 4 % of the object pixels for 0.01 mm.
+p90 2 mm). Its default second, upward pass (`upward_pass`) cancels its vertical lag for 1.5x
+the time a pair (0.57 -> 0.87 s on a slower shared machine, which puts the 0.23 s above at
+about 0.35 s): median / p90 0.21 / 0.93 -> 0.15 / 0.59 mm, valid 0.91 -> 0.89. Block 3 keeps
+2 % more object pixels than block 5 on slanted surfaces at the same accuracy; a full second
+left-right pass costs 0.12 s and 4 % of the object pixels for 0.01 mm.
 Half OpenCV's P1 (4 cn bs^2) measured 0.02 mm better and 1 % more coverage; the default stays
 OpenCV's advice, p1 is a parameter.
 """
