@@ -18,6 +18,7 @@ from reconstruction.stereo.filters import (
     texture_mask,
 )
 from reconstruction.stereo.params import (
+    ONE_WAY_MODES,
     SGBM_MODES,
     SGBM_SCALE,
     UPWARD_PASS_AGREEMENT_PX,
@@ -95,10 +96,6 @@ def equiangular_px(parabolic_px: np.ndarray) -> np.ndarray:
     whole = np.round(parabolic_px)
     p = parabolic_px - whole
     return (whole + 2 * p / (1 + 2 * np.abs(p))).astype(np.float32)
-
-
-# Modes whose vertical cost paths come from the rows above only.
-ONE_WAY_MODES = ("3WAY", "SGBM")
 
 
 def _sgbm(left, right, min_disparity, num_disparities, params: StereoParams) -> np.ndarray:

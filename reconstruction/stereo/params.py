@@ -33,6 +33,8 @@ SGBM_MODES = {
     "HH4": cv2.STEREO_SGBM_MODE_HH4,
     "3WAY": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
 }
+# Modes whose vertical cost paths come from the rows above only (`StereoParams.upward_pass`).
+ONE_WAY_MODES = ("3WAY", "SGBM")
 LOW_TEXTURE_POLICIES = ("supported", "reject")
 SUBPIXEL_FITS = ("equiangular", "parabola")
 # Where the two passes (`StereoParams.upward_pass`) differ by more than this, the pixel is
