@@ -23,10 +23,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from reconstruction.errors import ScannerError
-from reconstruction.yaml_files import read_yaml
+from reconstruction.yaml_files import read_yaml, yaml_text
 from scanner.results_folder import storage_error
 
 SCAN_SCHEMA = "scanner.scan/1"
@@ -74,7 +73,7 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 
 def atomic_write_yaml(path: Path, data: dict) -> None:
-    atomic_write_text(path, yaml.safe_dump(data, sort_keys=False))
+    atomic_write_text(path, yaml_text(data))
 
 
 def _read_yaml(path: Path, what: str) -> dict:

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from reconstruction.camera_model import StereoCamera
 from reconstruction.coverage import coverage_estimate
@@ -32,6 +31,7 @@ from reconstruction.mesh_topology import mesh_quality
 from reconstruction.outputs import export_files, save_outputs, summary
 from reconstruction.pipeline import ReconstructionResult, reconstruct_views
 from reconstruction.stage_timer import StageTimer
+from reconstruction.yaml_files import yaml_text
 from scanner.captures import atomic_write_text
 from scanner.config import ProcessingConfig
 from scanner.evaluation import (
@@ -83,7 +83,7 @@ def _write_results(
         view["eye_centres_W_m"] = eyes[view["index"]].tolist()
     atomic_write_text(
         out / "reconstruction.yaml",
-        yaml.safe_dump({"processing": to_dict(processing), **details}, sort_keys=False),
+        yaml_text({"processing": to_dict(processing), **details}),
     )
     converged = {}
     if "handeye" in details:

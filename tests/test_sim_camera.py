@@ -121,3 +121,24 @@ def test_same_seed_same_images_different_seed_different_noise(view_q):
     assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)
     diff = np.abs(a.left.astype(int) - c.left.astype(int))
     assert diff.mean() > 0.5  # noise and hand-eye error differ between seeds
+
+
+def test_sensor_noise_has_the_error_models_spread_and_no_bias(view_q):
+    from robots.simulation import create_simulation
+    from robots.truth import ErrorModel
+    from robots.workcell import WorkcellConfig
+
+    def first_pair(noise_std):
+        sim = create_simulation(
+            WorkcellConfig(), "vase", ErrorModel(seed=3, image_noise_std=noise_std)
+        )
+        sim.robot.teleport(view_q)
+        return sim.camera.capture()
+
+    clean, noisy = first_pair(0.0), first_pair(4.0)
+    # Only grey levels away from 0 and 255, where clipping does not bend the distribution.
+    inside = (clean.left > 20) & (clean.left < 235)
+    diff = noisy.left.astype(float)[inside] - clean.left.astype(float)[inside]
+    # Rounding to whole levels adds 1/12 level^2 and no bias.
+    assert abs(diff.mean()) < 0.05
+    assert abs(diff.std() - np.sqrt(4.0**2 + 1 / 12)) < 0.1
