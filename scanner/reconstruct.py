@@ -69,13 +69,25 @@ def free_reconstruction_dir(scan_dir: Path) -> Path:
     return free_results_dir(scan_dir, RECONSTRUCTION_MARKER)
 
 
-def _write_results(
-    result, processing: ProcessingConfig, truth, out: Path, eyes: dict[int, np.ndarray]
-) -> dict:
-    """Meshes, the fused cloud, reconstruction.yaml and the plots; their report keys. `eyes`:
-    each view's camera centres at its final pose (kept with the view: what it saw)."""
+def _write_pictures(result, processing: ProcessingConfig, truth, out: Path):
+    """The plots and, with the truth, every surface's deviation picture and statistics."""
     from scanner.report_plots import write_plots
 
+    return write_plots(
+        result,
+        out,
+        truth[1] if truth else None,
+        processing.deviation_scale_m,
+        processing.deviation_tolerance_m,
+    )
+
+
+def _write_results(
+    result, processing: ProcessingConfig, out: Path, eyes: dict[int, np.ndarray], pictures
+) -> dict:
+    """Meshes, the fused cloud and reconstruction.yaml; their report keys with the pictures'
+    (`_write_pictures`). `eyes`: each view's camera centres at its final pose (kept with the
+    view: what it saw)."""
     exports = prepare_exports(result.meshes, processing.mesh_export, processing.primary_surface)
     paths = save_outputs(result, out, processing.mesh_formats, exports)
     details = summary(result)
@@ -106,13 +118,7 @@ def _write_results(
             "rms_before_mm": 1e3 * refinement["rms_before_m"],
             "rms_after_mm": 1e3 * refinement["rms_after_m"],
         }
-    plots, deviation = write_plots(
-        result,
-        out,
-        truth[1] if truth else None,
-        processing.deviation_scale_m,
-        processing.deviation_tolerance_m,
-    )
+    plots, deviation = pictures
     return {
         **converged,
         "X_FC_estimate": result.X_FC.tolist(),
@@ -240,32 +246,35 @@ def _reconstruct(
         "captures_skipped": views.skipped,
         "settings": _settings(processing, first, origin or {}),
     }
-    with timer("coverage"):
-        # Each view's cameras at its estimated pose: a view saw what both of them saw.
-        eyes = {
-            v.index: (stereo or scans[views.scan_of[v.index]].stereo).eye_centres_W(v.X_WC)
-            for v in result.views
-        }
-        coverage = coverage_estimate(result.fused, list(eyes.values()))
-        report["coverage_estimate"] = coverage.fraction
-        report["unseen_area_m2"] = coverage.unseen_area_m2
-    closed = result.meshes.get("poisson_closed")
-    if closed is not None:
-        report["closed_model"] = {
-            "watertight": mesh_quality(closed).watertight,
-            "filled_area_m2": closed.filled_area_m2,
-        }
     truth = views.truths[0]
-    if to_first is not None:
-        with timer("evaluate"):
-            report.update(truth_metrics(result, views, processing, to_first, truth_samples))
-    if hangings:
-        voxel = config.surfaces.fused_voxel_size_m
-        report.update(hangings_report(result, views, to_first, voxel, eyes))
     earlier = _earlier_report(out)
-    with staged_folder(out) as staging:
+    with staged_folder(out) as staging, ThreadPoolExecutor(max_workers=1) as beside:
+        # The pictures need only the result and the truth: they are drawn (Drake's renderer,
+        # matplotlib) while the model is measured (Open3D, numpy), on the other core.
+        pictures = beside.submit(_write_pictures, result, processing, truth, staging)
+        with timer("coverage"):
+            # Each view's cameras at its estimated pose: a view saw what both of them saw.
+            eyes = {
+                v.index: (stereo or scans[views.scan_of[v.index]].stereo).eye_centres_W(v.X_WC)
+                for v in result.views
+            }
+            coverage = coverage_estimate(result.fused, list(eyes.values()))
+            report["coverage_estimate"] = coverage.fraction
+            report["unseen_area_m2"] = coverage.unseen_area_m2
+        closed = result.meshes.get("poisson_closed")
+        if closed is not None:
+            report["closed_model"] = {
+                "watertight": mesh_quality(closed).watertight,
+                "filled_area_m2": closed.filled_area_m2,
+            }
+        if to_first is not None:
+            with timer("evaluate"):
+                report.update(truth_metrics(result, views, processing, to_first, truth_samples))
+        if hangings:
+            voxel = config.surfaces.fused_voxel_size_m
+            report.update(hangings_report(result, views, to_first, voxel, eyes))
         with timer("write"):
-            report.update(_write_results(result, processing, truth, staging, eyes))
+            report.update(_write_results(result, processing, staging, eyes, pictures.result()))
         report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
         report["reconstruct_s"] = time.perf_counter() - t0
         merged = {**earlier, **report}

@@ -21,6 +21,7 @@ from reconstruction.stereo.rectification import Rectification, compute_rectifica
 from reconstruction.surfaces import FusedCloud, fuse_clouds
 from reconstruction.views import ViewCloud
 from robots.workcell import keep_out_radius_m
+from scanner.captures import Capture
 from scanner.config import ProcessingConfig, ScanConfig
 from scanner.manifest import SavedScan
 
@@ -76,11 +77,18 @@ def capture_views(
 
 
 def stereo_view(
-    scan: SavedScan, index: int, rect: Rectification, X_FC: np.ndarray, params: StereoParams
+    scan: SavedScan,
+    index: int,
+    rect: Rectification,
+    X_FC: np.ndarray,
+    params: StereoParams,
+    capture: Capture | None = None,
 ) -> tuple[ViewCloud, np.ndarray]:
     """One capture's stereo cloud and depth map, and its measured joint positions; a damaged
-    or mismatched capture raises ScannerError (its reason)."""
-    capture = scan.store.read_capture(index)
+    or mismatched capture raises ScannerError (its reason). `capture`: the capture as it was
+    just stored (its PNGs are lossless: reading them back gives the same arrays), else read."""
+    if capture is None:
+        capture = scan.store.read_capture(index)
     if capture.left.shape[1::-1] != rect.image_size:
         raise ScannerError(
             f"image size {capture.left.shape[1::-1]} differs from the camera model's"

@@ -25,6 +25,7 @@ from reconstruction.errors import ScannerError
 from reconstruction.filtering import FilteredCloud, filter_view
 from reconstruction.stereo.rectification import compute_rectification
 from reconstruction.views import ViewCloud
+from scanner.captures import Capture
 from scanner.manifest import SavedScan
 from scanner.scan_views import geometry_filter, stereo_view, with_roi_centre
 from scanner.typed_yaml import to_dict
@@ -86,15 +87,17 @@ class ViewStream:
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="view-stream")
         self._futures: list[Future] = []
 
-    def submit(self, index: int) -> None:
+    def submit(self, index: int, capture: Capture | None = None) -> None:
+        """Process capture `index`: the stored capture itself when given (no decoding of its
+        images again), else read back from the scan directory."""
         self._slots.acquire()
-        self._futures.append(self._pool.submit(self._process, index))
+        self._futures.append(self._pool.submit(self._process, index, capture))
 
-    def _process(self, index: int) -> None:
+    def _process(self, index: int, capture: Capture | None = None) -> None:
         t0 = time.perf_counter()
         try:
             view, q = stereo_view(
-                self.scan, index, self._rect, self.scan.X_FC_nominal, self._params
+                self.scan, index, self._rect, self.scan.X_FC_nominal, self._params, capture
             )
             self._joints[index] = q
             cloud = filter_view(
@@ -141,6 +144,6 @@ def with_stream(process, stream: ViewStream | None):
     def both(capture) -> None:
         if process is not None:
             process(capture)
-        stream.submit(capture.pose_index)
+        stream.submit(capture.pose_index, capture)
 
     return both
