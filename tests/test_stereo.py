@@ -129,3 +129,24 @@ def test_low_texture_is_kept_only_where_texture_at_its_depth_frames_it():
     assert keep[40:80, 40:60].all()  # the panel's inside
     assert not keep[30:90, 128:136].any()  # the skirt
     assert keep[40:80, 150:170].all()  # the object's inside
+
+
+def test_enclosed_mask_judges_only_the_pixels_asked_and_agrees_with_the_whole_image():
+    from reconstruction.stereo.filters import enclosed_mask
+
+    rng = np.random.default_rng(3)
+    # A slanted plane (disparity linear in u and v) with holes, some noise and a few blocks
+    # off the plane, anchors scattered over it.
+    v, u = np.mgrid[0:90, 0:130].astype(np.float32)
+    disparity = 30 + 0.05 * u + 0.02 * v + rng.normal(0, 0.3, u.shape).astype(np.float32)
+    disparity[rng.random(u.shape) < 0.05] = np.nan
+    disparity[20:30, 40:60] += 5.0
+    anchors = (rng.random(u.shape) < 0.2) & np.isfinite(disparity)
+    where = np.zeros(u.shape, bool)
+    where[10:40, 30:70] = True  # a few rows and columns only
+    where[70, 100] = True
+    whole = enclosed_mask(disparity, anchors, 2.0)
+    assert 0.3 < whole.mean() < 0.97  # both outcomes occur
+    assert np.array_equal(enclosed_mask(disparity, anchors, 2.0, where=where), whole & where)
+    nothing = np.zeros(u.shape, bool)
+    assert not enclosed_mask(disparity, anchors, 2.0, where=nothing).any()

@@ -71,14 +71,31 @@ def _framed_along_rows(disparity: np.ndarray, anchors: np.ndarray, tolerance_px:
         return framed & (np.abs(disparity - (d_left + t * (d_right - d_left))) <= tolerance_px)
 
 
-def enclosed_mask(disparity: np.ndarray, anchors: np.ndarray, tolerance_px: float) -> np.ndarray:
+def enclosed_mask(
+    disparity: np.ndarray,
+    anchors: np.ndarray,
+    tolerance_px: float,
+    where: np.ndarray | None = None,
+) -> np.ndarray:
     """Valid pixels framed by anchors (textured valid pixels) along their row or column with a
-    disparity that continues the anchors' (`_framed_along_rows`)."""
-    rows = _framed_along_rows(disparity, anchors, tolerance_px)
-    columns = _framed_along_rows(
-        np.ascontiguousarray(disparity.T), np.ascontiguousarray(anchors.T), tolerance_px
-    ).T
-    return np.isfinite(disparity) & (rows | columns)
+    disparity that continues the anchors' (`_framed_along_rows`). `where`: only these pixels
+    are judged (the rest come out False), and rows and columns without one are skipped: on a
+    well-textured view that is nearly all of them."""
+    judged = np.isfinite(disparity)
+    if where is not None:
+        judged &= where
+    framed = np.zeros(disparity.shape, bool)
+    rows = np.flatnonzero(judged.any(axis=1))
+    if len(rows):
+        framed[rows] = _framed_along_rows(disparity[rows], anchors[rows], tolerance_px)
+    columns = np.flatnonzero(judged.any(axis=0))
+    if len(columns):
+        framed[:, columns] |= _framed_along_rows(
+            np.ascontiguousarray(disparity[:, columns].T),
+            np.ascontiguousarray(anchors[:, columns].T),
+            tolerance_px,
+        ).T
+    return judged & framed
 
 
 def supported_low_texture(
@@ -102,7 +119,7 @@ def supported_low_texture(
     valid = np.isfinite(disparity)
     kernel = np.ones((anchor_erode_px, anchor_erode_px), np.uint8)
     anchors = cv2.erode(own.astype(np.uint8), kernel).astype(bool) & valid
-    framed = enclosed_mask(disparity, anchors, tolerance_px)
+    framed = enclosed_mask(disparity, anchors, tolerance_px, where=low)
     count, labels = cv2.connectedComponents((low & valid).astype(np.uint8), connectivity=4)
     size = np.bincount(labels.ravel(), minlength=count)
     framed_size = np.bincount(labels.ravel(), weights=(framed & low).ravel(), minlength=count)
