@@ -150,17 +150,23 @@ def filter_views(
     `done`: clouds of some views already filtered exactly so (streamed during the scan)."""
     kept_views, clouds, skipped = [], [], []
     done = done or {}
-    for view in views:
-        cloud = done.get(view.index)
-        if cloud is None:
-            cloud = filter_view(
-                view.index,
-                view.points_C,
-                view.colors,
-                view.X_WF @ X_FC_nominal,
-                config.filter,
-                remove_points,
-            )
+
+    def one(view: ViewCloud) -> FilteredCloud:
+        if view.index in done:
+            return done[view.index]
+        return filter_view(
+            view.index,
+            view.points_C,
+            view.colors,
+            view.X_WF @ X_FC_nominal,
+            config.filter,
+            remove_points,
+        )
+
+    # Two views at a time: Open3D's steps release the GIL and some of them use one core only.
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        filtered = list(pool.map(one, views))
+    for view, cloud in zip(views, filtered):
         if len(cloud) < config.filter.min_points:
             skipped.append((view.index, f"{len(cloud)} points after filtering"))
             continue

@@ -9,6 +9,7 @@ never used: its points are what we want.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -96,7 +97,15 @@ def make_geometry_filter(
     X_WR[:3, 3] = (c[0], c[1], c[2] + length / 2)
     primitives.append(_Primitive("cylinder", (workcell.config.rod_radius_m, length), X_WG=X_WR))
 
+    # Views are filtered on several threads (the scan's view stream): one context, so one
+    # configuration at a time.
+    lock = threading.Lock()
+
     def keep(points_W: np.ndarray, q: np.ndarray) -> np.ndarray:
+        with lock:
+            return _keep(points_W, q)
+
+    def _keep(points_W: np.ndarray, q: np.ndarray) -> np.ndarray:
         plant.SetPositions(plant_context, workcell.robot, np.asarray(q, float))
         query = sg.get_query_output_port().Eval(sg_context)
         mask = np.ones(len(points_W), bool)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -53,26 +54,27 @@ def capture_views(
     out = CaptureViews([], [], {})
     wanted = None if indices is None else set(indices)
     ready = ready or {}
-    for index in scan.store.captured_indices():
-        if wanted is not None and index not in wanted:
-            continue
+    todo = [i for i in scan.store.captured_indices() if wanted is None or i in wanted]
+
+    def one(index: int) -> tuple[ViewCloud, np.ndarray] | ScannerError:
         if index in ready:
-            view, q = ready[index]
-            out.views.append(view)
-            out.joints[index] = q
+            return ready[index]
+        try:
+            return stereo_view(scan, index, rect, X_FC, params)
+        except ScannerError as e:
+            return e
+
+    # Two views at a time: SGBM keeps both cores busy, the filters after it only one.
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        for index, done in zip(todo, pool.map(one, todo)):
+            if isinstance(done, ScannerError):
+                log.warning("capture %d skipped: %s", index, done)
+                out.skipped.append({"index": index, "reason": str(done)})
+                continue
+            out.views.append(done[0])
+            out.joints[index] = done[1]
             if on_view is not None:
                 on_view()
-            continue
-        try:
-            view, q = stereo_view(scan, index, rect, X_FC, params)
-        except ScannerError as e:
-            log.warning("capture %d skipped: %s", index, e)
-            out.skipped.append({"index": index, "reason": str(e)})
-            continue
-        out.views.append(view)
-        out.joints[index] = q
-        if on_view is not None:
-            on_view()
     return out
 
 

@@ -1,13 +1,13 @@
 """Per-view work while the robot moves: stereo, cropping, robot/cell point removal and the
-outlier filter of each capture run on a worker thread beside the capture loop, so that the
+outlier filter of each capture run on worker threads beside the capture loop, so that the
 reconstruction at the end of a scan only registers, corrects and builds surfaces.
 
-The worker reads each capture back from the scan directory and runs exactly the functions the
-offline `scanner reconstruct` runs, with the scan's own camera model, X_FC and processing
-settings: the streamed views are what the offline run would compute, and the reconstruction
-uses them only when those three are still the ones it reconstructs with. At most
-`max_pending` captures wait for the worker (the capture loop waits beyond that), so memory
-stays bounded however far the worker falls behind.
+The workers take each capture as it was stored (or read it back from the scan directory) and
+run exactly the functions the offline `scanner reconstruct` runs, with the scan's own camera
+model, X_FC and processing settings: the streamed views are what the offline run would
+compute, and the reconstruction uses them only when those three are still the ones it
+reconstructs with. At most `max_pending` captures are with the workers (the capture loop
+waits beyond that), so memory stays bounded however far they fall behind.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ class StreamedViews:
 class ViewStream:
     """`submit(index)` after each stored capture; `finish()` waits and returns the results."""
 
-    def __init__(self, scan: SavedScan, max_pending: int = 2) -> None:
+    def __init__(self, scan: SavedScan, max_pending: int = 3, workers: int = 2) -> None:
         self.scan = scan
         processing = scan.config.processing
         self._params = processing.stereo
@@ -84,7 +84,9 @@ class ViewStream:
         )
         self._result = StreamedViews(settings_key(scan, processing, scan.X_FC_nominal, scan.stereo))
         self._slots = threading.BoundedSemaphore(max_pending)
-        self._pool = ThreadPoolExecutor(1, thread_name_prefix="view-stream")
+        # Two workers: SGBM keeps both cores busy, the filters after it only one; a second
+        # view's matching fills the other while the first is filtered.
+        self._pool = ThreadPoolExecutor(workers, thread_name_prefix="view-stream")
         self._futures: list[Future] = []
 
     def submit(self, index: int, capture: Capture | None = None) -> None:
