@@ -60,6 +60,10 @@ from reconstruction.transforms import check_pose
 from reconstruction.view_registration import EdgeReport, RegisteredViews, register_hangings
 from reconstruction.views import ViewCloud
 
+# Views processed at a time (stereo, filtering): SGBM keeps both cores of the target machine
+# busy, the filters after it only one, so a second view's work fills the other core.
+VIEW_THREADS = 2
+
 
 @dataclass(frozen=True)
 class ReconstructionConfig:
@@ -163,8 +167,7 @@ def filter_views(
             remove_points,
         )
 
-    # Two views at a time: Open3D's steps release the GIL and some of them use one core only.
-    with ThreadPoolExecutor(max_workers=2) as pool:
+    with ThreadPoolExecutor(max_workers=VIEW_THREADS) as pool:
         filtered = list(pool.map(one, views))
     for view, cloud in zip(views, filtered):
         if len(cloud) < config.filter.min_points:

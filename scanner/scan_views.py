@@ -15,7 +15,7 @@ import numpy as np
 from reconstruction.camera_model import StereoCamera
 from reconstruction.errors import ScannerError
 from reconstruction.metrics import TriangleSurface
-from reconstruction.pipeline import ReconstructionConfig, filter_views
+from reconstruction.pipeline import VIEW_THREADS, ReconstructionConfig, filter_views
 from reconstruction.stereo.cloud import depth_image, view_cloud
 from reconstruction.stereo.params import StereoParams
 from reconstruction.stereo.rectification import Rectification, compute_rectification
@@ -64,8 +64,7 @@ def capture_views(
         except ScannerError as e:
             return e
 
-    # Two views at a time: SGBM keeps both cores busy, the filters after it only one.
-    with ThreadPoolExecutor(max_workers=2) as pool:
+    with ThreadPoolExecutor(max_workers=VIEW_THREADS) as pool:
         for index, done in zip(todo, pool.map(one, todo)):
             if isinstance(done, ScannerError):
                 log.warning("capture %d skipped: %s", index, done)

@@ -23,6 +23,7 @@ import numpy as np
 from reconstruction.camera_model import stereo_camera_to_dict
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import FilteredCloud, filter_view
+from reconstruction.pipeline import VIEW_THREADS
 from reconstruction.stereo.rectification import compute_rectification
 from reconstruction.views import ViewCloud
 from scanner.captures import Capture
@@ -70,7 +71,9 @@ class StreamedViews:
 class ViewStream:
     """`submit(index)` after each stored capture; `finish()` waits and returns the results."""
 
-    def __init__(self, scan: SavedScan, max_pending: int = 3, workers: int = 2) -> None:
+    def __init__(
+        self, scan: SavedScan, max_pending: int = VIEW_THREADS + 1, workers: int = VIEW_THREADS
+    ) -> None:
         self.scan = scan
         processing = scan.config.processing
         self._params = processing.stereo
@@ -84,8 +87,6 @@ class ViewStream:
         )
         self._result = StreamedViews(settings_key(scan, processing, scan.X_FC_nominal, scan.stereo))
         self._slots = threading.BoundedSemaphore(max_pending)
-        # Two workers: SGBM keeps both cores busy, the filters after it only one; a second
-        # view's matching fills the other while the first is filtered.
         self._pool = ThreadPoolExecutor(workers, thread_name_prefix="view-stream")
         self._futures: list[Future] = []
 
