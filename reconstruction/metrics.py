@@ -83,15 +83,18 @@ def distances_to_points(points: np.ndarray, target: np.ndarray) -> np.ndarray:
 def _sees(scene, p, normals, centre, todo, max_incidence_rad, offset_m) -> np.ndarray:
     """Which of the points `todo` (mask) the camera at `centre` sees (all in the scene's
     shifted coordinates): facing it and nothing in between."""
-    to_cam = centre - p
+    seen = np.zeros(len(p), bool)
+    # Only the points still to do: after the first views most samples are settled.
+    idx = np.flatnonzero(todo)
+    to_cam = centre - p[idx]
     dist = np.linalg.norm(to_cam, axis=1)
     d = to_cam / dist[:, None]
-    test = todo & (np.einsum("ij,ij->i", d, normals) > math.cos(max_incidence_rad))
-    seen = np.zeros(len(p), bool)
-    if test.any():
-        rays = np.hstack([p[test] + offset_m * d[test], d[test]]).astype(np.float32)
+    facing = np.einsum("ij,ij->i", d, normals[idx]) > math.cos(max_incidence_rad)
+    if facing.any():
+        idx, d, dist = idx[facing], d[facing], dist[facing]
+        rays = np.hstack([p[idx] + offset_m * d, d]).astype(np.float32)
         hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
-        seen[np.nonzero(test)[0][hit >= dist[test] - offset_m]] = True
+        seen[idx[hit >= dist - offset_m]] = True
     return seen
 
 

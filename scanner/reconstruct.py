@@ -272,7 +272,8 @@ def _reconstruct(
                 report.update(truth_metrics(result, views, processing, to_first, truth_samples))
         if hangings:
             voxel = config.surfaces.fused_voxel_size_m
-            report.update(hangings_report(result, views, to_first, voxel, eyes))
+            with timer("hangings"):
+                report.update(hangings_report(result, views, to_first, voxel, eyes))
         with timer("write"):
             report.update(_write_results(result, processing, staging, eyes, pictures.result()))
         report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}

@@ -153,6 +153,35 @@ def test_two_hangings_of_an_asymmetric_object_align_within_a_fraction_of_a_mm(na
     assert dt < 0.5e-3 and math.degrees(dr) < 0.2
 
 
+def test_hypotheses_that_start_or_end_alike_are_refined_and_scored_once(monkeypatch):
+    import reconstruction.pass_alignment as pa
+
+    mesh = resolve_object("pebble", 0.2)
+    X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
+    X1 = hung_pose(X0, 3, 1)
+    reference = _partial_cloud(mesh.vertices, mesh.triangles, X0, 0)
+    moved = _partial_cloud(mesh.vertices, mesh.triangles, X1, 1)
+    T_true = X0 @ np.linalg.inv(X1)
+    near, apart = T_true.copy(), T_true.copy()
+    near[:3, 3] += 0.0005  # starts where the first did
+    apart[:3, 3] += 0.004  # starts elsewhere, ends where the first did
+    starts = [T_true, T_true.copy(), near, apart]
+    monkeypatch.setattr(pa, "feature_hypotheses", lambda *a: [s.copy() for s in starts])
+    monkeypatch.setattr(pa, "rotation_grid_hypotheses", lambda *a: [])
+    refined, scored = [], []
+    refine, violation = pa._refine, pa.free_space_violation
+    monkeypatch.setattr(pa, "_refine", lambda *a: refined.append(1) or refine(*a))
+    monkeypatch.setattr(
+        pa, "free_space_violation", lambda *a: scored.append(1) or violation(*a)
+    )
+    a = pa.align_pass(1, moved, reference, SeenSpace((), ()))
+    assert len(refined) == 2 and len(scored) == 1
+    assert a.hypotheses == 4  # every hypothesis is still counted
+    assert a.verified, a.failures
+    dt, dr = alignment_error(a.T, T_true, transform_points(X1, mesh.vertices))
+    assert dt < 0.5e-3 and math.degrees(dr) < 0.2
+
+
 def test_a_symmetric_object_is_refused_as_ambiguous():
     import open3d as o3d
 
