@@ -171,9 +171,7 @@ def test_hypotheses_that_start_or_end_alike_are_refined_and_scored_once(monkeypa
     refined, scored = [], []
     refine, violation = pa._refine, pa.free_space_violation
     monkeypatch.setattr(pa, "_refine", lambda *a: refined.append(1) or refine(*a))
-    monkeypatch.setattr(
-        pa, "free_space_violation", lambda *a: scored.append(1) or violation(*a)
-    )
+    monkeypatch.setattr(pa, "free_space_violation", lambda *a: scored.append(1) or violation(*a))
     a = pa.align_pass(1, moved, reference, SeenSpace((), ()))
     assert len(refined) == 2 and len(scored) == 1
     assert a.hypotheses == 4  # every hypothesis is still counted
