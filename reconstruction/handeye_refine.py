@@ -125,22 +125,24 @@ def _matches(
         vt = views[t]
         X_CtW = invert(X_WC[t])
         p_Ct = np.vstack([transform_points(X_CtW @ X_WC[s], views[s].source_C) for s in sources])
-        p_Cs = np.vstack([views[s].source_C for s in sources])
-        R_WCs = np.vstack(
-            [np.broadcast_to(X_WC[s][:3, :3], (len(views[s].source_C), 3, 3)) for s in sources]
-        )
         d, k = vt.tree.query(p_Ct, distance_upper_bound=gate_m, workers=-1)
         ok = np.isfinite(d)
         if not ok.any():
             continue
-        p_Cs, p_Ct, R_WCs = p_Cs[ok], p_Ct[ok], R_WCs[ok]
+        # The matches of each source view, a block each (the sources were stacked in order).
+        ends = np.cumsum([len(views[s].source_C) for s in sources])
+        bounds = np.searchsorted(np.flatnonzero(ok), np.concatenate([[0], ends]))
+        p_Cs = np.vstack([views[s].source_C for s in sources])[ok]
+        p_Ct = p_Ct[ok]
         q_Ct, n_Ct = vt.target_C[k[ok]], vt.normals_C[k[ok]]
         # Both points in C_t: n . (p - q) is the same number in W, and cheaper here.
         r = np.einsum("ij,ij->i", n_Ct, p_Ct - q_Ct)
         # d p_W / d(w, v) = R_WC [-[p_C]x, I] for p_W = X_WF @ X_FC @ twist(w, v) @ p_C; the
         # row n_W^T R_WC is (n_W^T R_WCs) for the source and n_Ct^T for the target.
         n_W = rotate_vectors(X_WC[t], n_Ct)
-        nR_s = np.einsum("ij,ijk->ik", n_W, R_WCs)
+        nR_s = np.empty_like(n_W)
+        for s, a, b in zip(sources, bounds[:-1], bounds[1:]):
+            nR_s[a:b] = n_W[a:b] @ X_WC[s][:3, :3]
         J_rot = np.cross(p_Cs, nR_s) - np.cross(q_Ct, n_Ct)
         residuals.append(r)
         jacobians.append(np.hstack([J_rot, nR_s - n_Ct]))
