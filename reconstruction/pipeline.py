@@ -23,6 +23,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from reconstruction.coverage import Coverage, coverage_estimate
 from reconstruction.errors import ScannerError
 from reconstruction.filtering import (
     FilterConfig,
@@ -140,6 +141,10 @@ class ReconstructionResult:
     alignments: tuple[PassAlignment, ...] = ()  # hangings 2, 3, ... onto the first
     # The fused cloud at the nominal X_FC, kept when the correction did not converge.
     fused_nominal: FusedCloud | None = None
+    # How much of the object the views saw (no truth), all of them and per hanging; made
+    # when the caller tells where each view's cameras were (`reconstruct_views(eyes_of=)`).
+    coverage: Coverage | None = None
+    hanging_coverage: tuple[Coverage, ...] = ()
 
 
 def filter_views(
@@ -185,10 +190,12 @@ def build_surfaces(
     config: ReconstructionConfig,
     remove_points: RemovePoints | None = None,
     timer: StageTimer | None = None,
+    beside: Callable[[FusedCloud], None] | None = None,
 ) -> tuple[FusedCloud, dict[str, SurfaceMesh], list[str]]:
     """Fused cloud and the configured meshes for one set of camera poses. Also what a
     benchmark calls with the other pose sets of a result (kinematic, registered) to compare
-    variants without re-running registration. Returns (fused, meshes by method, notes)."""
+    variants without re-running registration. Returns (fused, meshes by method, notes).
+    `beside(fused)`: more work on the fused cloud, done while the meshes are built."""
     timer = timer or StageTimer()
     notes = []
     with timer("fuse"):
@@ -209,10 +216,13 @@ def build_surfaces(
         with timer(method):
             return surface_from(method, inputs, config.surfaces)
 
-    # Open3D releases the GIL: the (single-threaded, for determinism) Poisson solve runs on one
-    # core while TSDF fusion runs on the other.
-    with ThreadPoolExecutor(max_workers=max(1, len(methods))) as pool:
+    # The (single-threaded, for determinism) Poisson solve runs in a process of its own, TSDF
+    # fusion and `beside` share the other core.
+    with ThreadPoolExecutor(max_workers=len(methods) + 1) as pool:
+        also = pool.submit(beside, fused) if beside is not None else None
         built = list(pool.map(build, methods))
+        if also is not None:
+            also.result()
     return fused, dict(zip(methods, built, strict=True)), notes
 
 
@@ -224,12 +234,15 @@ def reconstruct_views(
     hangings: Sequence[Sequence[int]] | None = None,
     filtered: Mapping[int, FilteredCloud] | None = None,
     on_stage: StageListener | None = None,
+    eyes_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
 ) -> ReconstructionResult:
     """The whole reconstruction on in-memory views (see the module docstring). `hangings`:
     the capture indices of each pass of a multi-hanging scan (None: one pass); the passes are
     aligned into the first one's frame. `filtered`: clouds of views already filtered at the
     kinematic pose with these settings (the filter stage skips them). `on_stage` hears each
-    stage start and end (a progress display)."""
+    stage start and end (a progress display). `eyes_of(index, X_WC)`: a view's camera
+    centres in W (a stereo rig: both eyes, as `coverage_estimate` takes them); given, the
+    coverage is estimated while the meshes are built."""
     X_FC_nominal = check_pose(X_FC_nominal, "X_FC_nominal")
     indices = [v.index for v in views]
     if len(set(indices)) != len(indices):
@@ -324,7 +337,29 @@ def reconstruct_views(
                 views, clouds, X_WC, groups, config.alignment, config.surfaces.fused_voxel_size_m
             )
     hanging_of = {k: h for h, group in enumerate(groups) for k in group}
-    fused, meshes, surface_notes = build_surfaces(views, clouds, X_WC, config, remove_points, timer)
+    coverage: list[Coverage] = []
+
+    def estimate_coverage(fused: FusedCloud) -> None:
+        with timer("coverage"):
+            eyes = [eyes_of(v.index, X) for v, X in zip(views, X_WC)]
+            coverage.append(coverage_estimate(fused, eyes))
+            for group in map(sorted, groups if len(groups) > 1 else ()):
+                alone = fuse_clouds(
+                    [clouds[k] for k in group],
+                    [X_WC[k] for k in group],
+                    config.surfaces.fused_voxel_size_m,
+                )
+                coverage.append(coverage_estimate(alone, [eyes[k] for k in group]))
+
+    fused, meshes, surface_notes = build_surfaces(
+        views,
+        clouds,
+        X_WC,
+        config,
+        remove_points,
+        timer,
+        estimate_coverage if eyes_of is not None else None,
+    )
     fused_nominal = None
     if handeye is not None and not handeye.diagnosis.converged:
         # Nothing is lost: the model at the nominal poses stays beside the doubtful one.
@@ -355,6 +390,8 @@ def reconstruct_views(
         tuple(clouds),
         alignments,
         fused_nominal,
+        coverage[0] if coverage else None,
+        tuple(coverage[1:]),
     )
 
 

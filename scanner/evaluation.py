@@ -8,7 +8,6 @@ import math
 
 import numpy as np
 
-from reconstruction.coverage import coverage_estimate
 from reconstruction.errors import ScannerError
 from reconstruction.metrics import (
     TriangleSurface,
@@ -20,7 +19,6 @@ from reconstruction.metrics import (
 )
 from reconstruction.pass_alignment import alignment_error
 from reconstruction.pipeline import ReconstructionResult
-from reconstruction.surfaces import fuse_clouds
 from reconstruction.transforms import invert, transform_points
 from scanner.config import ProcessingConfig
 from scanner.scan_views import Gathered
@@ -59,24 +57,14 @@ def to_first_hanging(views: Gathered) -> list[np.ndarray] | None:
     return [poses[0] @ invert(X) for X in poses]
 
 
-def _pass_coverage(result, hanging: int, voxel_m: float, eyes: dict[int, np.ndarray]) -> float:
-    """The coverage estimate of one hanging's views alone (`eyes`: each view's estimated eye
-    centres by capture index)."""
-    pairs = [(v, c) for v, c in zip(result.views, result.clouds) if v.hanging == hanging]
-    fused = fuse_clouds([c for _, c in pairs], [v.X_WC for v, _ in pairs], voxel_m)
-    return coverage_estimate(fused, [eyes[v.index] for v, _ in pairs]).fraction
-
-
 def _pass_observed(surface, eyes: list[np.ndarray]) -> float:
     """The share of the true surface one hanging's (true) views saw."""
     return float(visible_mask(sample_surface(surface, 50_000), surface, eyes).mean())
 
 
-def hangings_report(
-    result, views: Gathered, to_first, voxel_m: float, eyes: dict[int, np.ndarray]
-) -> dict:
+def hangings_report(result, views: Gathered, to_first) -> dict:
     """Per hanging its views, coverage and alignment figures, and (with truth) its observed
-    fraction and alignment errors. `eyes`: each view's estimated eye centres by capture index."""
+    fraction and alignment errors."""
     surface = views.truths[0][1] if to_first is not None else None
     true_eyes = _true_eyes(views, to_first) if to_first is not None else {}
     passes = []
@@ -85,7 +73,7 @@ def hangings_report(
         record: dict = {
             "hanging": h + 1,
             "views": len(indices),
-            "coverage_estimate": _pass_coverage(result, h, voxel_m, eyes),
+            "coverage_estimate": result.hanging_coverage[h].fraction,
         }
         if surface is not None:
             record["observed_fraction"] = _pass_observed(surface, [true_eyes[i] for i in indices])

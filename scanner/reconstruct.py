@@ -24,7 +24,6 @@ from pathlib import Path
 import numpy as np
 
 from reconstruction.camera_model import StereoCamera
-from reconstruction.coverage import coverage_estimate
 from reconstruction.errors import ScannerError
 from reconstruction.mesh_export import export_record, prepare_exports
 from reconstruction.mesh_topology import mesh_quality
@@ -235,9 +234,14 @@ def _reconstruct(
             if to_first is not None
             else None
         )
+
+        def eyes_of(index: int, X_WC: np.ndarray) -> np.ndarray:
+            # A view saw what both of its cameras saw.
+            return (stereo or scans[views.scan_of[index]].stereo).eye_centres_W(X_WC)
+
         with timer("reconstruct"):
             result = reconstruct_views(
-                views.views, X_FC, config, views.remove, hangings, filtered, on_stage
+                views.views, X_FC, config, views.remove, hangings, filtered, on_stage, eyes_of
             )
         truth_samples = sampling.result() if sampling is not None else None
 
@@ -252,15 +256,9 @@ def _reconstruct(
         # The pictures need only the result and the truth: they are drawn (Drake's renderer,
         # matplotlib) while the model is measured (Open3D, numpy), on the other core.
         pictures = beside.submit(_write_pictures, result, processing, truth, staging)
-        with timer("coverage"):
-            # Each view's cameras at its estimated pose: a view saw what both of them saw.
-            eyes = {
-                v.index: (stereo or scans[views.scan_of[v.index]].stereo).eye_centres_W(v.X_WC)
-                for v in result.views
-            }
-            coverage = coverage_estimate(result.fused, list(eyes.values()))
-            report["coverage_estimate"] = coverage.fraction
-            report["unseen_area_m2"] = coverage.unseen_area_m2
+        eyes = {v.index: eyes_of(v.index, v.X_WC) for v in result.views}
+        report["coverage_estimate"] = result.coverage.fraction
+        report["unseen_area_m2"] = result.coverage.unseen_area_m2
         closed = result.meshes.get("poisson_closed")
         if closed is not None:
             report["closed_model"] = {
@@ -271,9 +269,8 @@ def _reconstruct(
             with timer("evaluate"):
                 report.update(truth_metrics(result, views, processing, to_first, truth_samples))
         if hangings:
-            voxel = config.surfaces.fused_voxel_size_m
             with timer("hangings"):
-                report.update(hangings_report(result, views, to_first, voxel, eyes))
+                report.update(hangings_report(result, views, to_first))
         with timer("write"):
             report.update(_write_results(result, processing, staging, eyes, pictures.result()))
         report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}

@@ -283,3 +283,44 @@ def test_without_the_coarse_stage_the_failure_is_reported_and_the_nominal_model_
     assert record["handeye_converged"] is False and record["handeye"]["diagnosis"]["failures"]
     paths = save_outputs(result, tmp_path)
     assert paths["fused_cloud_nominal"].stat().st_size > 0
+
+
+def test_the_coverage_estimated_beside_the_meshes_is_that_of_the_result(scan):
+    """Given where each view's cameras were, the pipeline estimates the coverage while the
+    meshes are built: the same figures as estimating it from the finished result, for all
+    views and for each hanging alone."""
+    from reconstruction.coverage import coverage_estimate
+    from reconstruction.surfaces import fuse_clouds
+
+    X_CR = np.eye(4)
+    X_CR[0, 3] = 0.12
+
+    def eyes_of(index, X_WC):
+        return np.stack([X_WC[:3, 3], (X_WC @ X_CR)[:3, 3]])
+
+    config = replace(NO_SURFACES, surfaces=SurfaceConfig(methods=("tsdf",)))
+    without = reconstruct_views(scan.views, scan.X_FC_nominal, config)
+    assert without.coverage is None and without.hanging_coverage == ()
+
+    indices = [v.index for v in scan.views]
+    halves = [indices[::2], indices[1::2]]
+    result = reconstruct_views(
+        scan.views,
+        scan.X_FC_nominal,
+        replace(config, alignment=replace(config.alignment, max_ambiguity=1.0)),
+        hangings=halves,
+        eyes_of=eyes_of,
+    )
+    eyes = {v.index: eyes_of(v.index, v.X_WC) for v in result.views}
+    whole = coverage_estimate(result.fused, list(eyes.values()))
+    assert result.coverage == whole and 0.2 < whole.fraction < 1.0
+    assert len(result.hanging_coverage) == 2
+    for h, estimate in enumerate(result.hanging_coverage):
+        mine = [(v, c) for v, c in zip(result.views, result.clouds) if v.hanging == h]
+        fused = fuse_clouds(
+            [c for _, c in mine],
+            [v.X_WC for v, _ in mine],
+            config.surfaces.fused_voxel_size_m,
+        )
+        assert estimate == coverage_estimate(fused, [eyes[v.index] for v, _ in mine])
+    assert "coverage" in result.timings_s
