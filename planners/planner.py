@@ -249,14 +249,20 @@ class Planner:
         for roll in rolls:
             X_WC = camera_pose(dataclasses.replace(viewpoint, roll_rad=roll), self.X_MC)
             for q in ik_camera(self.robot, X_WC, self.X_FC, q_current):
-                # Rolls 2 pi apart (or a symmetric roll list) give the same configuration twice.
-                if not any(np.allclose(q, other, atol=1e-9) for other in solutions):
+                # Rolls 2 pi apart (or a symmetric roll list) give the same configuration twice
+                # (numpy.allclose's test, on all earlier solutions at once: this runs for
+                # thousands of viewpoint candidates).
+                if not solutions or not np.any(
+                    np.all(np.abs(q - solutions) <= 1e-9 + 1e-5 * np.abs(solutions), axis=1)
+                ):
                     solutions.append(q)
         if not solutions:
             return []
         free = self.checker.are_free(solutions)
         solutions = [q for q, ok in zip(solutions, free) if ok]
-        times = [self.estimate_duration_s(q_current, q) for q in solutions]
+        if not solutions:
+            return []
+        times = straight_line_time_s(np.array(solutions) - q_current, self._v, self._a)
         return [solutions[i] for i in np.argsort(times, kind="stable")]
 
     def _check_viewpoint(self, viewpoint: Viewpoint) -> None:
