@@ -13,6 +13,7 @@ results folder (captures are never modified):
 
 from __future__ import annotations
 
+import importlib
 import json
 import logging
 import math
@@ -234,6 +235,8 @@ def _reconstruct(
             if to_first is not None
             else None
         )
+        # So is loading the plotting library (3 s), which the pictures at the end would wait for.
+        beside.submit(importlib.import_module, "scanner.report_plots")
 
         def eyes_of(index: int, X_WC: np.ndarray) -> np.ndarray:
             # A view saw what both of its cameras saw.
