@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from reconstruction.checks import check_fields, fraction, integer, positive
+from reconstruction.registration import correction_at
 from reconstruction.transforms import invert, rotation_angle_rad, transform_points
 from reconstruction.views import DepthImage
 
@@ -264,8 +265,8 @@ SAME_FIT = (2e-5, math.radians(0.005))
 
 
 def _same_pose(A: np.ndarray, B: np.ndarray, centre: np.ndarray, within) -> bool:
-    moved = np.linalg.norm(transform_points(A, centre[None]) - transform_points(B, centre[None]))
-    return bool(moved <= within[0] and rotation_angle_rad(A[:3, :3].T @ B[:3, :3]) <= within[1])
+    moved_m, turned_rad = correction_at(A, B, centre)
+    return moved_m <= within[0] and turned_rad <= within[1]
 
 
 def _score(fit: _Fit, violation: float) -> float:
