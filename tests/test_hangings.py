@@ -180,6 +180,42 @@ def test_hypotheses_that_start_or_end_alike_are_refined_and_scored_once(monkeypa
     assert dt < 0.5e-3 and math.degrees(dr) < 0.2
 
 
+def test_ransac_on_features_matched_once_gives_the_libraries_hypotheses():
+    import open3d as o3d
+
+    from reconstruction.pass_alignment import feature_hypotheses, prepared_features
+
+    reg = o3d.pipelines.registration
+    mesh = resolve_object("pebble", 0.2)
+    X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
+    X1 = hung_pose(X0, 3, 1)
+    config = AlignmentConfig(runs=4, ransac_iterations=2000)
+    source, src_f = prepared_features(_partial_cloud(mesh.vertices, mesh.triangles, X1, 1), 0.003)
+    target, tgt_f = prepared_features(_partial_cloud(mesh.vertices, mesh.triangles, X0, 0), 0.003)
+    got = feature_hypotheses(source, target, src_f, tgt_f, config)
+    distance = 1.5 * config.voxel_m
+    for run in range(config.runs):
+        # What each run was before: the library matching the features itself.
+        o3d.utility.random.seed(1000 + run)
+        expected = reg.registration_ransac_based_on_feature_matching(
+            source,
+            target,
+            src_f,
+            tgt_f,
+            run % 2 == 0,
+            distance,
+            reg.TransformationEstimationPointToPoint(False),
+            3,
+            [
+                reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+                reg.CorrespondenceCheckerBasedOnDistance(distance),
+            ],
+            reg.RANSACConvergenceCriteria(config.ransac_iterations, 0.9999),
+        )
+        np.testing.assert_array_equal(got[1 + run], np.asarray(expected.transformation))
+    assert len({g.tobytes() for g in got[1:]}) > 1  # the runs differ: the seeds were used
+
+
 def test_a_symmetric_object_is_refused_as_ambiguous():
     import open3d as o3d
 
