@@ -56,6 +56,23 @@ def test_icp_recovers_a_known_offset(three_views):
     assert reg.information.shape == (6, 6) and reg.n_correspondences > 1000
 
 
+def test_the_information_matrix_is_the_librarys_at_the_final_pose(three_views):
+    import open3d as o3d
+
+    scan, _, pyramids = three_views
+    X_TS_start = invert(scan.X_WC_true[1]) @ scan.X_WC_true[0]
+    config = IcpConfig()
+    reg = register_pair(pyramids[0], pyramids[1], X_TS_start, config)
+    expected = o3d.pipelines.registration.get_information_matrix_from_point_clouds(
+        pyramids[0].levels[-1],
+        pyramids[1].levels[-1],
+        config.levels[-1].max_correspondence_m,
+        reg.X_TS,
+    )
+    np.testing.assert_allclose(reg.information, np.asarray(expected), rtol=1e-12, atol=1e-12)
+    assert reg.information[3, 3] == reg.n_correspondences  # one translation row per match
+
+
 def test_edges_far_from_the_kinematic_guess_are_pruned(three_views):
     scan, _, pyramids = three_views
     X_TS_true = invert(scan.X_WC_true[1]) @ scan.X_WC_true[0]
