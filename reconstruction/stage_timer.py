@@ -1,7 +1,9 @@
-"""Wall time per named stage, summed over repeated entries: what every report's timings use."""
+"""Wall time per named stage, summed over repeated entries: what every report's timings use;
+and the CPU time a run used, which bounds how fast it can be on a given number of cores."""
 
 from __future__ import annotations
 
+import resource
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -39,3 +41,12 @@ class StageTimer:
         """fn(*args), timed as `stage`."""
         with self(stage):
             return fn(*args)
+
+
+def cpu_seconds() -> float:
+    """CPU time (user + system, s) used so far by this process and its finished children (the
+    Poisson solver's process). Over a run, divided by the cores, it is the wall time the run
+    cannot go below without removing computation, however well its stages overlap."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
