@@ -19,7 +19,7 @@ from pydrake.common import Parallelism
 from pydrake.geometry import Mesh, Role
 from pydrake.planning import SceneGraphCollisionChecker
 
-from robots.workcell import Workcell
+from robots.models.workcell import Workcell
 
 
 def _max_norm_distance(q_a: np.ndarray, q_b: np.ndarray) -> float:

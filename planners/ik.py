@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robots.rx60 import RX60
+from robots.models.rx60 import RX60
 
 TWO_PI = 2 * math.pi
 # Below this sin(q5) the wrist is singular: q4 + q6 is fixed, q4 is taken from the seed.

@@ -53,10 +53,10 @@ from planners.timing import (
     time_parameterise,
 )
 from planners.validation import ValidationReport, validate_trajectory
-from reconstruction.checks import check_fields, integer, positive
-from reconstruction.errors import ScannerError
-from robots.rx60 import RX60, rx60_urdf
-from robots.workcell import Workcell, keep_out_radius_m
+from reconstruction.common.checks import check_fields, integer, positive
+from reconstruction.common.errors import ScannerError
+from robots.models.rx60 import RX60, rx60_urdf
+from robots.models.workcell import Workcell, keep_out_radius_m
 
 PLAN_FAILURE_REASONS = ("start_invalid", "goal_invalid", "no_path", "validation_failed")
 _DEG = math.pi / 180.0

@@ -36,7 +36,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from planners.collision import CollisionChecker
-from robots.rx60 import RX60
+from robots.models.rx60 import RX60
 
 # Bump when the stored format or the way a roadmap is built changes.
 ROADMAP_FORMAT = 2

@@ -27,8 +27,8 @@ from pydrake.trajectories import (
     Trajectory as DrakeTrajectory,
 )
 
-from robots.drivers import JointTrajectory
-from robots.rx60 import RX60
+from robots.drivers.interfaces import JointTrajectory
+from robots.models.rx60 import RX60
 
 SMOOTH = "smooth"
 STOP = "stop"

@@ -18,7 +18,7 @@ import numpy as np
 
 from planners.collision import CollisionChecker
 from planners.timing import Trajectory
-from robots.rx60 import RX60
+from robots.models.rx60 import RX60
 
 # Refinement rounds; each one at least doubles the resolution where it was too coarse.
 MAX_REFINEMENTS = 12

@@ -8,16 +8,16 @@ from pathlib import Path
 
 import yaml
 
-from reconstruction.mesh_export import (
+from reconstruction.common.transforms import pose_difference
+from reconstruction.pipeline import ReconstructionResult
+from reconstruction.surfaces.export import (
     MeshExportConfig,
     MeshExports,
     export_record,
     prepare_exports,
 )
-from reconstruction.mesh_topology import mesh_quality
-from reconstruction.pipeline import ReconstructionResult
-from reconstruction.surfaces import save_cloud, save_mesh
-from reconstruction.transforms import pose_difference
+from reconstruction.surfaces.meshes import save_cloud, save_mesh
+from reconstruction.surfaces.topology import mesh_quality
 
 # Beside the meshes: their unit, frame and decimation (a reader of an STL has no other way to
 # know them).

@@ -23,31 +23,33 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from reconstruction.coverage import Coverage, coverage_estimate
-from reconstruction.errors import ScannerError
-from reconstruction.filtering import (
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.stage_timer import StageListener, StageTimer
+from reconstruction.common.transforms import check_pose
+from reconstruction.evaluation.coverage import Coverage, coverage_estimate
+from reconstruction.handeye.basin import coarse_handeye, displacement_at
+from reconstruction.handeye.correction import (
+    HandEyeConfig,
+    HandEyeResult,
+    correct_handeye,
+    plausible_correction,
+)
+from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment
+from reconstruction.hangings.merge import align_hangings, group_positions
+from reconstruction.registration.all_views import EdgeReport, RegisteredViews, register_hangings
+from reconstruction.registration.filtering import (
     FilterConfig,
     FilterCounts,
     FilteredCloud,
     RemovePoints,
     filter_view,
 )
-from reconstruction.handeye_basin import coarse_handeye, displacement_at
-from reconstruction.handeye_correction import (
-    HandEyeConfig,
-    HandEyeResult,
-    correct_handeye,
-    plausible_correction,
-)
-from reconstruction.merge import align_hangings, group_positions
-from reconstruction.pass_alignment import AlignmentConfig, PassAlignment
-from reconstruction.poisson_solver import start_solver
-from reconstruction.posegraph import PoseGraphConfig, optimise_pose_graph
-from reconstruction.registration import (
+from reconstruction.registration.pairwise import (
     IcpConfig,
 )
-from reconstruction.stage_timer import StageListener, StageTimer
-from reconstruction.surfaces import (
+from reconstruction.registration.posegraph import PoseGraphConfig, optimise_pose_graph
+from reconstruction.registration.views import ViewCloud
+from reconstruction.surfaces.meshes import (
     DepthView,
     FusedCloud,
     SurfaceConfig,
@@ -57,9 +59,7 @@ from reconstruction.surfaces import (
     refine_fused,
     surface_from,
 )
-from reconstruction.transforms import check_pose
-from reconstruction.view_registration import EdgeReport, RegisteredViews, register_hangings
-from reconstruction.views import ViewCloud
+from reconstruction.surfaces.poisson_solver import start_solver
 
 # Views processed at a time (stereo, filtering): SGBM keeps both cores of the target machine
 # busy, the filters after it only one, so a second view's work fills the other core.

@@ -48,8 +48,8 @@ def _rendered_ratios(seed: int, data: Path, scratch: Path) -> list[float]:
 def _render_free_ratios(seeds: int) -> list[list[float]]:
     from planners.ik import camera_pose, fk_flange, ik_camera, rig_centre_offset
     from reconstruction.calibration.eye_in_hand import calibrate_hand_eye
-    from robots.camera_tool import nominal_X_FC
-    from robots.rx60 import RX60
+    from robots.models.camera_tool import nominal_X_FC
+    from robots.models.rx60 import RX60
     from scanner.calibrate.stations import plan_stations
 
     config = CalibrateConfig()

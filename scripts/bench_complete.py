@@ -18,10 +18,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from reconstruction.errors import RefusedResultError
-from scanner.config import ScanConfig, with_overrides
-from scanner.merge import run_merge
-from scanner.scan import run_scan
+from reconstruction.common.errors import RefusedResultError
+from scanner.reconstruct.merge import run_merge
+from scanner.scan.config import ScanConfig, with_overrides
+from scanner.scan.run import run_scan
 
 MESHES = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 FILES = {"bunny": "stanford-bunny.obj", "teapot": "teapot.obj", "spot": "spot.obj"}

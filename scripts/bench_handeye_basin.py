@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from reconstruction.metrics import handeye_error
-from scanner.config import ProcessingConfig, ScanConfig, with_overrides
-from scanner.manifest import open_scan
-from scanner.reconstruct import run_reconstruct
-from scanner.scan import run_scan
-from scanner.scan_views import load_truth_of
+from reconstruction.evaluation.metrics import handeye_error
+from scanner.reconstruct.scan_views import load_truth_of
+from scanner.reconstruct.stages import run_reconstruct
+from scanner.scan.config import ProcessingConfig, ScanConfig, with_overrides
+from scanner.scan.manifest import open_scan
+from scanner.scan.run import run_scan
 
 BUNNY = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "stanford-bunny.obj"
 # (mm, deg): the diagonal and a few off it.

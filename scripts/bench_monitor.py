@@ -24,8 +24,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from scanner.config import ScanConfig, with_overrides
-from scanner.scan import run_scan
+from scanner.scan.config import ScanConfig, with_overrides
+from scanner.scan.run import run_scan
 
 # (error-model seed, intruder start times s, intruder path seed) per scan.
 CASES = ((0, (), 0), (1, (3.0, 10.0), 1), (2, (5.0, 12.5), 2))

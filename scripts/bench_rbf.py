@@ -17,10 +17,10 @@ import tempfile
 from dataclasses import fields, replace
 from pathlib import Path
 
-from reconstruction.surfaces import SurfaceConfig
-from scanner.config import ProcessingConfig, ScanConfig, with_overrides
-from scanner.reconstruct import run_reconstruct
-from scanner.scan import run_scan
+from reconstruction.surfaces.meshes import SurfaceConfig
+from scanner.reconstruct.stages import run_reconstruct
+from scanner.scan.config import ProcessingConfig, ScanConfig, with_overrides
+from scanner.scan.run import run_scan
 
 MESHES = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 BUNNY = "stanford-bunny.obj"

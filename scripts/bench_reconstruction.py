@@ -19,13 +19,13 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
-from reconstruction.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
+from reconstruction.common.stage_timer import cpu_seconds
+from reconstruction.evaluation.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
 from reconstruction.pipeline import VARIANTS, variant_config
-from reconstruction.stage_timer import cpu_seconds
-from scanner.captures import CaptureStore
-from scanner.config import ProcessingConfig, ScanConfig, with_overrides
-from scanner.reconstruct import run_reconstruct
-from scanner.scan import run_scan
+from scanner.reconstruct.stages import run_reconstruct
+from scanner.scan.captures import CaptureStore
+from scanner.scan.config import ProcessingConfig, ScanConfig, with_overrides
+from scanner.scan.run import run_scan
 
 MESHES = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 OBJECTS = {

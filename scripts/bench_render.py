@@ -8,10 +8,10 @@ from __future__ import annotations
 import json
 import time
 
-from robots.simulation import create_simulation
-from robots.truth import ErrorModel
-from robots.workcell import WorkcellConfig
-from scanner.preview import first_reachable_view
+from robots.models.workcell import WorkcellConfig
+from robots.simulation.cell import create_simulation
+from robots.simulation.truth import ErrorModel
+from scanner.scan.preview import first_reachable_view
 
 PAIRS = 20
 

@@ -18,11 +18,11 @@ import tempfile
 from pathlib import Path
 
 from planners.planner import Trajectory
-from reconstruction.stage_timer import cpu_seconds
-from scanner.config import ScanConfig, with_overrides
-from scanner.manifest import open_scan
-from scanner.scan import run_scan
-from scanner.world import setup_world
+from reconstruction.common.stage_timer import cpu_seconds
+from scanner.scan.config import ScanConfig, with_overrides
+from scanner.scan.manifest import open_scan
+from scanner.scan.run import run_scan
+from scanner.scan.world import setup_world
 
 
 def naive_order_motion_s(config: ScanConfig, scan_dir: Path) -> float:

@@ -27,10 +27,10 @@ from reconstruction.stereo.cloud import stereo_cloud
 from reconstruction.stereo.metrics import stereo_accuracy
 from reconstruction.stereo.params import StereoParams, disparity_window, object_depth_window
 from reconstruction.stereo.rectification import compute_rectification
-from robots import camera_tool
-from robots.simulation import HOME_Q, create_simulation
-from robots.truth import ErrorModel
-from robots.workcell import WorkcellConfig, keep_out_radius_m
+from robots.models import camera_tool
+from robots.models.workcell import WorkcellConfig, keep_out_radius_m
+from robots.simulation.cell import HOME_Q, create_simulation
+from robots.simulation.truth import ErrorModel
 
 RADIUS_M = 0.5
 TIMING_RUNS = 3

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from scanner.mesh_render import render_mesh
+from scanner.reports.mesh_render import render_mesh
 
 
 def main() -> None:

@@ -28,9 +28,9 @@ def _isolated_cache(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def vase_sim():
-    from robots.simulation import create_simulation
-    from robots.truth import ErrorModel
-    from robots.workcell import WorkcellConfig
+    from robots.models.workcell import WorkcellConfig
+    from robots.simulation.cell import create_simulation
+    from robots.simulation.truth import ErrorModel
 
     return create_simulation(WorkcellConfig(), "vase", ErrorModel(seed=3))
 
@@ -38,6 +38,6 @@ def vase_sim():
 @pytest.fixture(scope="session")
 def view_q(vase_sim):
     """A reachable configuration looking at the object (from the preview's search)."""
-    from scanner.preview import first_reachable_view
+    from scanner.scan.preview import first_reachable_view
 
     return first_reachable_view(vase_sim, 0.5)[1]

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from reconstruction.camera_model import default_stereo_camera
-from reconstruction.transforms import invert, make_pose, transform_points
+from reconstruction.common.transforms import invert, make_pose, transform_points
+from reconstruction.stereo.camera_model import default_stereo_camera
 from scanner.monitor.stereo_point import StereoRig
 
 W, H = 640, 480

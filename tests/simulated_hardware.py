@@ -1,8 +1,8 @@
 """A hardware driver module for the tests: the simulator's arm and camera, loaded through
 `--driver tests.simulated_hardware:connect` exactly like a real robot's driver would be."""
 
-from robots.drivers import Hardware
-from scanner.world import simulated_cell
+from robots.drivers.interfaces import Hardware
+from scanner.scan.world import simulated_cell
 
 
 def connect(config) -> Hardware:

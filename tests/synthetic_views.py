@@ -15,21 +15,21 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from reconstruction.transforms import (
+from reconstruction.common.transforms import (
     invert,
     make_pose,
     rotation_about,
     transform_points,
     twist_to_pose,
 )
-from reconstruction.views import DepthImage, ViewCloud
-from robots.camera_tool import nominal_X_FC
-from robots.objects import resolve_object
-from scanner.sampling import fibonacci_directions
+from reconstruction.registration.views import DepthImage, ViewCloud
+from robots.models.camera_tool import nominal_X_FC
+from robots.models.objects import resolve_object
+from scanner.scan.sampling import fibonacci_directions
 
 OBJECT_CENTER_W = np.array([0.30, 0.0, 0.78])  # the default cell's scan centre
 # The view direction the RX60 reaches best: from the robot's side, slightly from below
-# (scanner.preview.first_reachable_view).
+# (scanner.scan.preview.first_reachable_view).
 ROBOT_SIDE = np.array([-1.0, 0.0, -0.3]) / np.linalg.norm([-1.0, 0.0, -0.3])
 
 

@@ -9,12 +9,12 @@ import open3d as o3d
 import pytest
 import yaml
 
-from reconstruction.errors import ScannerError
-from scanner.batch import check_ray_address, run_batch
-from scanner.cli import main
-from scanner.config import load_scan_config
-from scanner.reconstruct_command import ReconstructOptions, reconstruct_one
-from scanner.scan import run_scan
+from reconstruction.common.errors import ScannerError
+from scanner.cli.main import main
+from scanner.reconstruct.batch import check_ray_address, run_batch
+from scanner.reconstruct.command import ReconstructOptions, reconstruct_one
+from scanner.scan.config import load_scan_config
+from scanner.scan.run import run_scan
 from tests.tiny_scan import TINY_SCAN
 
 TINY = {**TINY_SCAN, "reconstruct": False}

@@ -13,7 +13,7 @@ from reconstruction.calibration.boards import (
     board_image,
     detect_board,
 )
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
 from tests.board_views import warped_board
 from tests.conftest import shared_data
 

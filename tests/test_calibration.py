@@ -31,9 +31,9 @@ from reconstruction.calibration.pose_files import (
     read_pose_list,
 )
 from reconstruction.calibration.settings import CalibrationSettings
-from reconstruction.camera_model import PinholeCamera, default_stereo_camera, project_points
-from reconstruction.errors import ScannerError
-from reconstruction.transforms import invert, make_pose, pose_difference, transform_points
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import invert, make_pose, pose_difference, transform_points
+from reconstruction.stereo.camera_model import PinholeCamera, default_stereo_camera, project_points
 from tests.board_views import warped_board
 
 TRANSLATION_TOL_M = 1e-6  # noise-free synthetic data: solvers are exact to numerical precision

@@ -14,10 +14,10 @@ from scipy.spatial.transform import Rotation
 
 from reconstruction.calibration import exchange
 from reconstruction.calibration.file import Calibration, load_calibration, save_calibration
-from reconstruction.camera_model import PinholeCamera, StereoCamera, default_stereo_camera
-from reconstruction.errors import ScannerError
-from reconstruction.transforms import invert, make_pose, rotation_about, transform_points
-from scanner.cli import main
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import invert, make_pose, rotation_about, transform_points
+from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera, default_stereo_camera
+from scanner.cli.main import main
 
 # Round trips through rectification matrices (ROS) lose a few ulps of the rotation; 1e-12 rad
 # and 1e-12 m are far below anything a calibration resolves (~1e-5 rad, ~1e-5 m).

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.file import load_calibration
 from reconstruction.calibration.pose_files import pose_format
-from reconstruction.errors import RefusedResultError, ScannerError
+from reconstruction.common.errors import RefusedResultError, ScannerError
 from scanner.calibrate.offline import OfflineOptions, calibrate_directory
 from tests.conftest import shared_data
 

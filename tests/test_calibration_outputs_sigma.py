@@ -12,11 +12,11 @@ from planners.ik import camera_pose, fk_flange, ik_camera, rig_centre_offset
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.eye_in_hand import calibrate_hand_eye, hand_eye_covariance
 from reconstruction.calibration.settings import CalibrationSettings
-from reconstruction.camera_model import StereoDesign
-from reconstruction.transforms import invert, make_pose, pose_to_twist, rotation_about
-from robots.calibration_board import BoardPlacement
-from robots.camera_tool import nominal_X_FC
-from robots.rx60 import RX60
+from reconstruction.common.transforms import invert, make_pose, pose_to_twist, rotation_about
+from reconstruction.stereo.camera_model import StereoDesign
+from robots.models.calibration_board import BoardPlacement
+from robots.models.camera_tool import nominal_X_FC
+from robots.models.rx60 import RX60
 from scanner.calibrate.sigma_check import board_observations, error_in_sigmas, summarise
 from scanner.calibrate.stations import StationConfig, plan_stations
 

@@ -15,15 +15,15 @@ from reconstruction.calibration.eye_in_hand import calibrate_hand_eye
 from reconstruction.calibration.file import load_calibration
 from reconstruction.calibration.hand_eye import motion_summary
 from reconstruction.calibration.observations import PoseObservation
-from reconstruction.errors import ScannerError
-from reconstruction.transforms import make_pose, pose_difference
-from robots import camera_tool
-from robots.truth import load_truth
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import make_pose, pose_difference
+from robots.models import camera_tool
+from robots.simulation.truth import load_truth
 from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.eye_in_hand import run_eye_in_hand
 from scanner.calibrate.eye_to_hand import run_eye_to_hand
 from scanner.calibrate.offline import OfflineOptions, calibrate_directory
-from scanner.captures import CaptureStore
+from scanner.scan.captures import CaptureStore
 
 HANDEYE_TOL_M = 0.3e-3  # the target
 HANDEYE_TOL_RAD = math.radians(0.05)
@@ -127,7 +127,7 @@ def test_eye_to_hand_held_out_error(tmp_path):
 def test_an_unreachable_board_is_a_clear_error():
     from dataclasses import replace
 
-    from robots.calibration_board import BoardPlacement
+    from robots.models.calibration_board import BoardPlacement
     from scanner.calibrate.eye_in_hand import build_world, planner_reachable
     from scanner.calibrate.stations import plan_stations
 
@@ -148,7 +148,7 @@ def test_an_unreachable_board_is_a_clear_error():
 def test_eye_in_hand_on_a_hardware_driver(tmp_path):
     from dataclasses import replace
 
-    from reconstruction.transforms import pose_difference
+    from reconstruction.common.transforms import pose_difference
     from scanner.calibrate.eye_in_hand import build_world
 
     config = CalibrateConfig()
@@ -194,7 +194,7 @@ def test_an_interrupted_calibration_resumes_without_repeating_captures(tmp_path)
 
 
 def test_resume_of_a_folder_that_is_not_a_calibration(tmp_path):
-    from scanner.captures import CaptureStore as Store
+    from scanner.scan.captures import CaptureStore as Store
 
     Store.create(tmp_path / "scan", {"kind": "scan", "pose_count": 1})
     with pytest.raises(ScannerError, match="not a calibration directory"):

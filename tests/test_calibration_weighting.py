@@ -12,12 +12,12 @@ from reconstruction.calibration.boards import BoardSpec, Detection
 from reconstruction.calibration.eye_in_hand import calibrate_hand_eye
 from reconstruction.calibration.observations import PoseObservation
 from reconstruction.calibration.settings import CalibrationSettings
-from reconstruction.camera_model import StereoDesign, project_points
-from reconstruction.transforms import invert, pose_difference, transform_points
-from robots.calibration_board import BoardPlacement
-from robots.camera_tool import nominal_X_FC
-from robots.rx60 import RX60
-from robots.truth import ErrorModel, sample_truth
+from reconstruction.common.transforms import invert, pose_difference, transform_points
+from reconstruction.stereo.camera_model import StereoDesign, project_points
+from robots.models.calibration_board import BoardPlacement
+from robots.models.camera_tool import nominal_X_FC
+from robots.models.rx60 import RX60
+from robots.simulation.truth import ErrorModel, sample_truth
 from scanner.calibrate.stations import StationConfig, plan_stations
 
 BOARD = BoardSpec("chessboard", 10, 7, 0.02)

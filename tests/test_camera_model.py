@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 import yaml
 
-from reconstruction.camera_model import (
+from reconstruction.common.errors import ScannerError
+from reconstruction.stereo.camera_model import (
     StereoCamera,
     default_stereo_camera,
     load_stereo_camera,
     save_stereo_camera,
     stereo_camera_to_dict,
 )
-from reconstruction.errors import ScannerError
 from reconstruction.stereo.rectification import compute_rectification
 
 

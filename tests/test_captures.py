@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from reconstruction.errors import ScannerError
-from scanner.captures import Capture, CaptureStore
+from reconstruction.common.errors import ScannerError
+from scanner.scan.captures import Capture, CaptureStore
 
 
 def _capture(index, count=3, seed=0):

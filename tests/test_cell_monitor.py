@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import yaml
 
-from reconstruction.errors import ScannerError
-from scanner.cli import main
-from scanner.config import ScanConfig, with_overrides
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.typed_yaml import from_dict
+from scanner.cli.main import main
 from scanner.monitor.cell_monitor import MonitorStoppedError
-from scanner.scan import run_scan
-from scanner.typed_yaml import from_dict
+from scanner.scan.config import ScanConfig, with_overrides
+from scanner.scan.run import run_scan
 from tests.tiny_scan import TINY_SCAN
 
 pytestmark = pytest.mark.slow
@@ -32,7 +32,7 @@ def intruded(tmp_path_factory):
 
 
 def test_an_intruder_pauses_the_scan_and_no_capture_is_taken_while_it_is_there(intruded):
-    from robots.cell_video import default_intruder_paths
+    from robots.simulation.cell_video.video import default_intruder_paths
 
     r = intruded.report
     m = r["monitor"]
@@ -55,7 +55,7 @@ def test_an_intruder_pauses_the_scan_and_no_capture_is_taken_while_it_is_there(i
 
 
 def test_the_arm_still_reaches_every_view_after_an_interrupted_motion(intruded, tmp_path):
-    from scanner.captures import CaptureStore
+    from scanner.scan.captures import CaptureStore
 
     # The same scan without the monitor: the pause changes the path, never the goals.
     plain = run_scan(replace(_config(), monitor=ScanConfig().monitor), tmp_path / "plain")
@@ -85,7 +85,7 @@ def test_a_failing_monitor_stops_the_arm_before_it_moves(tmp_path, monkeypatch):
     monkeypatch.setattr(detector.IntrusionDetector, "update", fails_after_warm_up)
     with pytest.raises(MonitorStoppedError, match="camera unplugged.*robot was stopped"):
         run_scan(_config(), tmp_path / "scan")
-    from scanner.captures import CaptureStore
+    from scanner.scan.captures import CaptureStore
 
     store = CaptureStore.open(tmp_path / "scan")
     assert store.captured_indices() == [] and store.read_manifest()["status"] == "interrupted"
@@ -108,7 +108,7 @@ def test_a_monitor_that_falls_behind_stops_the_arm(tmp_path, monkeypatch):
     config = replace(config, monitor=replace(config.monitor, max_lag_s=0.3))
     with pytest.raises(MonitorStoppedError, match="fell .* behind the camera"):
         run_scan(config, tmp_path / "scan")
-    from scanner.captures import CaptureStore
+    from scanner.scan.captures import CaptureStore
 
     assert CaptureStore.open(tmp_path / "scan").read_manifest()["status"] == "interrupted"
 

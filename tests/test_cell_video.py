@@ -9,19 +9,19 @@ import cv2
 import numpy as np
 import pytest
 
-from reconstruction.camera_model import project_points
-from reconstruction.errors import ScannerError
-from reconstruction.transforms import invert, transform_points
-from robots.camera_tool import tool_visual_boxes
-from robots.cell_video import (
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import invert, transform_points
+from reconstruction.stereo.camera_model import project_points
+from robots.drivers.interfaces import JointTrajectory
+from robots.models.camera_tool import tool_visual_boxes
+from robots.models.kinematics import Kinematics
+from robots.simulation.cell import HOME_Q
+from robots.simulation.cell_video.video import (
     MONITORED_VOLUME,
     CellVideo,
     IntruderPath,
     default_intruder_paths,
 )
-from robots.drivers import JointTrajectory
-from robots.kinematics import Kinematics
-from robots.simulation import HOME_Q
 
 # Sensor noise is 2 grey levels: a difference of two frames above 20 is 7 sigma, never noise.
 CHANGED_GREY = 20

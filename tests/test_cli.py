@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from scanner.cli import main
+from scanner.cli.main import main
 
 
 def _run(*args):
@@ -61,7 +61,12 @@ def test_a_folder_that_is_not_a_scan_is_refused(command, tmp_path):
 
 
 def test_printed_config_loads_back_as_the_same_configuration(tmp_path):
-    from scanner.config import ScanConfig, load_scan_config, scan_config_to_dict, with_overrides
+    from scanner.scan.config import (
+        ScanConfig,
+        load_scan_config,
+        scan_config_to_dict,
+        with_overrides,
+    )
 
     r = _run("scan", "--print-config", "--views", "7", "--object", "bracket")
     assert r.returncode == 0, r.stderr
@@ -99,7 +104,7 @@ def test_version_is_the_installed_package_version():
 
 
 def test_seed_and_preview_help_state_their_defaults():
-    from scanner.cli import build_parser
+    from scanner.cli.main import build_parser
 
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")

@@ -13,11 +13,11 @@ from dataclasses import replace
 import pytest
 
 from reconstruction.calibration.pose_files import PoseFormat
-from reconstruction.errors import ScannerError
-from scanner.arguments import ScannerArgumentParser
+from reconstruction.common.errors import ScannerError
 from scanner.calibrate.config import CalibrateConfig
-from scanner.cli import build_parser, main
-from scanner.config import ProcessingConfig, ScanConfig, load_scan_config
+from scanner.cli.arguments import ScannerArgumentParser
+from scanner.cli.main import build_parser, main
+from scanner.scan.config import ProcessingConfig, ScanConfig, load_scan_config
 
 
 def _commands() -> dict[str, argparse.ArgumentParser]:
@@ -101,10 +101,10 @@ def test_help_defaults_are_the_configurations(command, flag, expected):
 
 def test_help_defaults_follow_the_record(monkeypatch):
     # The default is read from the record when help is printed, not a copied literal.
-    import scanner.config
+    import scanner.scan.config
 
     changed = replace(ScanConfig(), hangings=ScanConfig().hangings + 2)
-    monkeypatch.setattr(scanner.config, "ScanConfig", lambda: changed)
+    monkeypatch.setattr(scanner.scan.config, "ScanConfig", lambda: changed)
     assert f"(default {changed.hangings})" in _help(_commands()["scan"], "--hangings")
 
 
@@ -112,8 +112,8 @@ def test_building_the_parser_leaves_the_configurations_unimported():
     # The configuration modules import Drake and Open3D; --version and usage errors should not
     # wait for them, so help defaults are read only when help is printed.
     code = (
-        "import sys; from scanner.cli import build_parser; build_parser(); "
-        "heavy = ('pydrake', 'scanner.config', 'scanner.calibrate.config', 'robots.truth'); "
+        "import sys; from scanner.cli.main import build_parser; build_parser(); "
+        "heavy = ('pydrake', 'scanner.scan.config', 'scanner.calibrate.config', 'robots.simulation.truth'); "
         "print([m for m in heavy if m in sys.modules])"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

@@ -16,10 +16,10 @@ from hypothesis import strategies as st
 
 from reconstruction.calibration import exchange
 from reconstruction.calibration.file import Calibration, save_calibration
-from scanner.captures import CaptureStore
-from scanner.cli import build_parser, main
-from scanner.config import ScanConfig
-from scanner.manifest import new_manifest
+from scanner.cli.main import build_parser, main
+from scanner.scan.captures import CaptureStore
+from scanner.scan.config import ScanConfig
+from scanner.scan.manifest import new_manifest
 
 
 class WorkStartedError(Exception):
@@ -247,16 +247,16 @@ def no_work(monkeypatch):
     import reconstruction.calibration.file
     import scanner.calibrate.eye_to_hand
     import scanner.calibrate.offline
-    import scanner.inspect
-    import scanner.preview
-    import scanner.scan_views
+    import scanner.inspect.inspection
+    import scanner.reconstruct.scan_views
+    import scanner.scan.preview
 
     monkeypatch.setattr(planners.planner.Planner, "__init__", _tripwire)
-    monkeypatch.setattr(scanner.inspect, "inspect_model", _tripwire)
-    monkeypatch.setattr(scanner.scan_views, "capture_views", _tripwire)
+    monkeypatch.setattr(scanner.inspect.inspection, "inspect_model", _tripwire)
+    monkeypatch.setattr(scanner.reconstruct.scan_views, "capture_views", _tripwire)
     monkeypatch.setattr(scanner.calibrate.offline, "solve", _tripwire)
     monkeypatch.setattr(scanner.calibrate.eye_to_hand, "grid_points", _tripwire)
-    monkeypatch.setattr(scanner.preview, "first_reachable_view", _tripwire)
+    monkeypatch.setattr(scanner.scan.preview, "first_reachable_view", _tripwire)
     # Export and import: nothing is written.
     for name in ("write_opencv_stereo", "write_ros_camera_info", "write_static_transform"):
         monkeypatch.setattr(exchange, name, _tripwire)

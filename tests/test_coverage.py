@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from reconstruction.coverage import coverage_estimate
-from reconstruction.surfaces import FusedCloud
+from reconstruction.evaluation.coverage import coverage_estimate
+from reconstruction.surfaces.meshes import FusedCloud
 
 
 def _sphere_cloud(n: int, radius: float, keep) -> FusedCloud:
@@ -33,7 +33,7 @@ def test_an_object_seen_from_below_is_covered_as_far_as_the_cameras_see():
     # share of the true surface the cameras see (the simulator's observed_fraction).
     import open3d as o3d
 
-    from reconstruction.metrics import TriangleSurface, sample_surface, visible_mask
+    from reconstruction.evaluation.metrics import TriangleSurface, sample_surface, visible_mask
 
     rng = np.random.default_rng(2)
     below = rng.normal(size=(400, 3))

@@ -6,12 +6,17 @@ import numpy as np
 
 from planners.ik import Viewpoint
 from planners.planner import PlanFailure
-from robots.drivers import CaptureError, JointTrajectory, StereoCameraDriver, StereoImages
-from robots.rx60 import RX60
-from robots.sim_robot import SimulatedRobot
-from scanner.captures import CaptureStore
-from scanner.decision import DecisionMaker, FixedViewList, State
-from scanner.viewpoints import PlannedView, ViewOption
+from robots.drivers.interfaces import (
+    CaptureError,
+    JointTrajectory,
+    StereoCameraDriver,
+    StereoImages,
+)
+from robots.models.rx60 import RX60
+from robots.simulation.robot import SimulatedRobot
+from scanner.scan.captures import CaptureStore
+from scanner.scan.decision import DecisionMaker, FixedViewList, State
+from scanner.scan.viewpoints import PlannedView, ViewOption
 
 
 @dataclass

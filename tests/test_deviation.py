@@ -4,10 +4,10 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from reconstruction.deviation import deviation_stats, signed_distances
-from reconstruction.metrics import TriangleSurface
-from scanner.deviation_picture import colour_map_rgb, deviation_colours, scale_position
-from scanner.mesh_render import render_mesh
+from reconstruction.evaluation.deviation import deviation_stats, signed_distances
+from reconstruction.evaluation.metrics import TriangleSurface
+from scanner.reports.deviation_picture import colour_map_rgb, deviation_colours, scale_position
+from scanner.reports.mesh_render import render_mesh
 
 
 def _box(size=0.1) -> TriangleSurface:

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
 from scanner.monitor.ee_tracker import (
     EndEffectorTracker,
     TrackerConfig,
@@ -169,13 +169,13 @@ def rendered():
     joint 1 than its encoder says; the tracker fed each frame with the tool's silhouettes at
     the MEASURED joints. Returns per run the estimates, the true tool centres and velocities
     (forward kinematics at the TRUE joints) and the centres forward kinematics predicts."""
-    from reconstruction.camera_model import default_stereo_camera
-    from robots.camera_tool import nominal_X_FC, tool_visual_boxes
-    from robots.cell_video import CellVideo
-    from robots.drivers import JointTrajectory
-    from robots.kinematics import Kinematics
-    from robots.truth import ErrorModel, sample_truth
-    from robots.workcell import WorkcellConfig
+    from reconstruction.stereo.camera_model import default_stereo_camera
+    from robots.drivers.interfaces import JointTrajectory
+    from robots.models.camera_tool import nominal_X_FC, tool_visual_boxes
+    from robots.models.kinematics import Kinematics
+    from robots.models.workcell import WorkcellConfig
+    from robots.simulation.cell_video.video import CellVideo
+    from robots.simulation.truth import ErrorModel, sample_truth
     from scanner.monitor.stereo_point import StereoRig
 
     cell = WorkcellConfig()

@@ -3,7 +3,7 @@
 import numpy as np
 import open3d as o3d
 
-from reconstruction.mesh_topology import _fan_fill, mesh_quality
+from reconstruction.surfaces.topology import _fan_fill, mesh_quality
 
 
 def test_a_small_simple_hole_is_closed_watertight():

@@ -16,10 +16,10 @@ import pytest
 import yaml
 
 from reconstruction.calibration.file import load_calibration
-from reconstruction.errors import StorageError
-from scanner.captures import CaptureStore
-from scanner.config import load_scan_config
-from scanner.scan import run_scan
+from reconstruction.common.errors import StorageError
+from scanner.scan.captures import CaptureStore
+from scanner.scan.config import load_scan_config
+from scanner.scan.run import run_scan
 from tests.conftest import shared_data
 from tests.tiny_scan import TINY_SCAN
 
@@ -139,9 +139,9 @@ def test_calibration_killed_at_any_moment_leaves_nothing_that_looks_complete(tmp
 
 def _full_disk_after(monkeypatch, png_writes: int) -> None:
     """Every capture image write after the first `png_writes` fails with ENOSPC."""
-    import scanner.captures
+    import scanner.scan.captures
 
-    real = scanner.captures.write_bytes
+    real = scanner.scan.captures.write_bytes
     count = {"png": 0}
 
     def write_bytes(path: Path, data: bytes) -> None:
@@ -151,7 +151,7 @@ def _full_disk_after(monkeypatch, png_writes: int) -> None:
                 raise OSError(errno.ENOSPC, "No space left on device", str(path))
         real(path, data)
 
-    monkeypatch.setattr(scanner.captures, "write_bytes", write_bytes)
+    monkeypatch.setattr(scanner.scan.captures, "write_bytes", write_bytes)
 
 
 def test_full_disk_stops_the_scan_and_keeps_every_capture(tiny_file, tmp_path, monkeypatch):
@@ -180,13 +180,13 @@ def test_full_disk_stops_the_scan_and_keeps_every_capture(tiny_file, tmp_path, m
 
 
 def test_full_disk_while_writing_results_leaves_no_results(tiny_scan_dir, tmp_path, monkeypatch):
-    import scanner.reconstruct
+    import scanner.reconstruct.stages
 
     def no_space(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(scanner.reconstruct, "save_outputs", no_space)
+    monkeypatch.setattr(scanner.reconstruct.stages, "save_outputs", no_space)
     out = tmp_path / "rec"
     with pytest.raises(StorageError, match="no space left on the device"):
-        scanner.reconstruct.run_reconstruct(tiny_scan_dir, results_dir=out)
+        scanner.reconstruct.stages.run_reconstruct(tiny_scan_dir, results_dir=out)
     assert not out.exists() and not list(tmp_path.glob(".rec.*"))

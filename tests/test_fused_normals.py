@@ -3,8 +3,8 @@
 import numpy as np
 import open3d as o3d
 
-from reconstruction.fused_normals import local_planes, off_surface
-from reconstruction.surfaces import FusedCloud, refine_fused
+from reconstruction.surfaces.meshes import FusedCloud, refine_fused
+from reconstruction.surfaces.normals import local_planes, off_surface
 
 
 def refined_normals(points, normals, radius_m):

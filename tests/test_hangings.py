@@ -16,18 +16,18 @@ import numpy as np
 import pytest
 import yaml
 
-from reconstruction.pass_alignment import (
+from reconstruction.common.transforms import make_pose, rotation_about, transform_points
+from reconstruction.hangings.alignment import (
     AlignmentConfig,
     SeenSpace,
     align_pass,
     alignment_error,
     free_space_violation,
 )
-from reconstruction.transforms import make_pose, rotation_about, transform_points
-from reconstruction.views import DepthImage
-from robots.hangings import hanging_rotation, hung_pose
-from robots.objects import resolve_object
-from robots.workcell import placed_object
+from reconstruction.registration.views import DepthImage
+from robots.models.objects import resolve_object
+from robots.models.workcell import placed_object
+from robots.simulation.operator import hanging_rotation, hung_pose
 from tests.conftest import shared_data
 
 
@@ -125,7 +125,7 @@ def test_the_texture_must_agree_another_object_of_the_same_shape_is_refused():
     # At the true pose the shape fits and the texture does not: that is why it cannot verify.
     from scipy.spatial import cKDTree
 
-    from reconstruction.pass_alignment import _fit
+    from reconstruction.hangings.alignment import _fit
 
     config = AlignmentConfig()
     at_truth = _fit(
@@ -154,7 +154,7 @@ def test_two_hangings_of_an_asymmetric_object_align_within_a_fraction_of_a_mm(na
 
 
 def test_hypotheses_that_start_or_end_alike_are_refined_and_scored_once(monkeypatch):
-    import reconstruction.pass_alignment as pa
+    import reconstruction.hangings.alignment as pa
 
     mesh = resolve_object("pebble", 0.2)
     X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
@@ -183,7 +183,7 @@ def test_hypotheses_that_start_or_end_alike_are_refined_and_scored_once(monkeypa
 def test_ransac_on_features_matched_once_gives_the_libraries_hypotheses():
     import open3d as o3d
 
-    from reconstruction.pass_alignment import feature_hypotheses, prepared_features
+    from reconstruction.hangings.alignment import feature_hypotheses, prepared_features
 
     reg = o3d.pipelines.registration
     mesh = resolve_object("pebble", 0.2)
@@ -327,8 +327,8 @@ TINY = {
 
 @pytest.mark.slow
 def test_merging_scans_of_different_objects_is_refused(tmp_path):
-    from scanner.config import load_scan_config
-    from scanner.scan import run_scan
+    from scanner.scan.config import load_scan_config
+    from scanner.scan.run import run_scan
 
     scans = []
     for name in ("pebble", "bracket"):
@@ -347,8 +347,8 @@ def test_merging_scans_of_different_objects_is_refused(tmp_path):
 def test_merge_refuses_bad_input(two_hangings, tmp_path):
     import shutil
 
-    from reconstruction.errors import ScannerError
-    from scanner.merge import run_merge
+    from reconstruction.common.errors import ScannerError
+    from scanner.reconstruct.merge import run_merge
 
     scan = two_hangings.scan_dir
     with pytest.raises(ScannerError, match="two or more scan directories"):
@@ -370,7 +370,7 @@ def test_merge_refuses_bad_input(two_hangings, tmp_path):
 
 @pytest.mark.slow
 def test_a_scan_killed_in_its_second_hanging_resumes_there(two_hangings):
-    from scanner.captures import CaptureStore
+    from scanner.scan.captures import CaptureStore
 
     killed = two_hangings.killed
     assert 12 < killed["captures"] < 24, "killed in the second hanging"

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from planners.ik import Viewpoint, camera_pose, ik_camera, ik_flange, rig_centre_offset
-from reconstruction.camera_model import default_stereo_camera
-from robots.camera_tool import nominal_X_FC
-from robots.kinematics import Kinematics
-from robots.rx60 import RX60
+from reconstruction.stereo.camera_model import default_stereo_camera
+from robots.models.camera_tool import nominal_X_FC
+from robots.models.kinematics import Kinematics
+from robots.models.rx60 import RX60
 
 # Issue 3: position error <= 0.1 mm, orientation error <= 0.05 deg.
 POSITION_TOL_M = 1e-4

@@ -8,10 +8,10 @@ import open3d as o3d
 import pytest
 from scipy.spatial.transform import Rotation
 
-from reconstruction.metrics import TriangleSurface
-from reconstruction.reference_alignment import align_reference, reference_unit
-from reconstruction.transforms import pose_difference
-from scanner.cli import main
+from reconstruction.common.transforms import pose_difference
+from reconstruction.evaluation.metrics import TriangleSurface
+from reconstruction.evaluation.reference_alignment import align_reference, reference_unit
+from scanner.cli.main import main
 
 
 def _part() -> o3d.geometry.TriangleMesh:

@@ -3,9 +3,9 @@ small cell of space rather than per pixel."""
 
 import numpy as np
 
-from reconstruction.filtering import RegionOfInterest
-from reconstruction.surfaces import HOOK_CELL_M, DepthView, masked_depth
-from reconstruction.views import DepthImage
+from reconstruction.registration.filtering import RegionOfInterest
+from reconstruction.registration.views import DepthImage
+from reconstruction.surfaces.meshes import HOOK_CELL_M, DepthView, masked_depth
 
 
 def _slanted_plane() -> DepthView:

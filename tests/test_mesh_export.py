@@ -14,8 +14,12 @@ import open3d as o3d
 import pytest
 import yaml
 
-from reconstruction.errors import ScannerError
-from reconstruction.mesh_export import (
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import make_pose, rotvec_to_matrix, transform_points
+from reconstruction.evaluation.metrics import distances_to_mesh, sample_surface
+from reconstruction.outputs import save_outputs
+from reconstruction.pipeline import ReconstructionResult
+from reconstruction.surfaces.export import (
     ExportedMesh,
     MeshExportConfig,
     export_record,
@@ -24,15 +28,11 @@ from reconstruction.mesh_export import (
     prepare_exports,
     principal_frame,
 )
-from reconstruction.mesh_topology import mesh_quality
-from reconstruction.metrics import distances_to_mesh, sample_surface
-from reconstruction.outputs import save_outputs
-from reconstruction.pipeline import ReconstructionResult
-from reconstruction.surfaces import FusedCloud, SurfaceMesh
-from reconstruction.transforms import make_pose, rotvec_to_matrix, transform_points
-from scanner.config import load_scan_config
-from scanner.reconstruct import load_processing_config
-from scanner.reconstruct_command import ReconstructOptions, _mesh_export
+from reconstruction.surfaces.meshes import FusedCloud, SurfaceMesh
+from reconstruction.surfaces.topology import mesh_quality
+from scanner.reconstruct.command import ReconstructOptions, _mesh_export
+from scanner.reconstruct.stages import load_processing_config
+from scanner.scan.config import load_scan_config
 from tests.tiny_scan import TINY_SCAN
 
 # Where the robot's world puts a scanned object (the brief's STL spans x 0.30-0.51 m,
@@ -223,7 +223,7 @@ def test_bad_flags_are_one_line_errors_naming_the_flag(option, value, message):
 
 @pytest.fixture(scope="module")
 def tiny_scan_dir(tmp_path_factory) -> Path:
-    from scanner.scan import run_scan
+    from scanner.scan.run import run_scan
 
     path = tmp_path_factory.mktemp("cfg") / "tiny.yaml"
     path.write_text(yaml.safe_dump({**TINY_SCAN, "reconstruct": False}))
@@ -231,7 +231,7 @@ def tiny_scan_dir(tmp_path_factory) -> Path:
 
 
 def test_reconstruct_writes_mm_object_frame_decimated_meshes(tiny_scan_dir, tmp_path, capsys):
-    from scanner.cli import main
+    from scanner.cli.main import main
 
     out = tmp_path / "rec"
     argv = ["reconstruct", str(tiny_scan_dir), "--out", str(out), "--formats", "ply,stl"]

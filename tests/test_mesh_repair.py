@@ -3,7 +3,7 @@
 import numpy as np
 import open3d as o3d
 
-from reconstruction.mesh_topology import (
+from reconstruction.surfaces.topology import (
     _edge_use,
     _manifold_edges_keep,
     clean_mesh,
@@ -58,7 +58,7 @@ def test_clean_mesh_drops_debris_and_the_fin():
 
 
 def test_canonical_order_is_one_order_for_one_geometry_and_keeps_winding():
-    from reconstruction.mesh_topology import canonical_order
+    from reconstruction.surfaces.topology import canonical_order
 
     sphere = o3d.geometry.TriangleMesh.create_sphere(radius=0.01, resolution=8)
     v, t = np.asarray(sphere.vertices), np.asarray(sphere.triangles)

@@ -4,9 +4,9 @@ extra views records and captures them."""
 import numpy as np
 import pytest
 
-from reconstruction.metrics import TriangleSurface, sample_surface, visible_mask
-from reconstruction.surfaces import FusedCloud
-from scanner.next_best_view import CoverageModel
+from reconstruction.evaluation.metrics import TriangleSurface, sample_surface, visible_mask
+from reconstruction.surfaces.meshes import FusedCloud
+from scanner.scan.next_best_view import CoverageModel
 
 
 def _sphere_seen_from(centres):
@@ -42,9 +42,9 @@ def test_the_next_view_looks_where_the_model_is_unseen():
 def test_a_scan_adds_the_next_best_views_it_was_allowed(tmp_path):
     import yaml
 
-    from scanner.captures import CaptureStore
-    from scanner.config import load_scan_config
-    from scanner.scan import run_scan
+    from scanner.scan.captures import CaptureStore
+    from scanner.scan.config import load_scan_config
+    from scanner.scan.run import run_scan
 
     path = tmp_path / "small.yaml"
     path.write_text(

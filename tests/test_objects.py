@@ -3,8 +3,13 @@
 import numpy as np
 import pytest
 
-from reconstruction.errors import ScannerError
-from robots.objects import BUILTIN_OBJECTS, find_named_mesh, resolve_object, write_textured_obj
+from reconstruction.common.errors import ScannerError
+from robots.models.objects import (
+    BUILTIN_OBJECTS,
+    find_named_mesh,
+    resolve_object,
+    write_textured_obj,
+)
 from tests.conftest import shared_data
 
 

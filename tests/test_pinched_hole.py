@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
-from reconstruction.mesh_topology import _small_loops, fill_small_holes, mesh_quality
+from reconstruction.surfaces.topology import _small_loops, fill_small_holes, mesh_quality
 
 PATCH = Path(__file__).parent / "data" / "pinched_hole.npz"
 

@@ -12,19 +12,19 @@ import pytest
 import yaml
 
 from planners.ik import rig_centre_offset
-from robots.workcell import DEFAULT_CELL_BOXES
-from scanner.captures import CaptureStore
-from scanner.cli import main
-from scanner.config import scan_config_from_dict
-from scanner.plan_only import PICTURE_FILE, PLAN_FILE, plan_scan, run_plan_only
-from scanner.scan import run_scan
-from scanner.world import setup_world
+from robots.models.workcell import DEFAULT_CELL_BOXES
+from scanner.cli.main import main
+from scanner.plan_only.plan import PICTURE_FILE, PLAN_FILE, plan_scan, run_plan_only
+from scanner.scan.captures import CaptureStore
+from scanner.scan.config import scan_config_from_dict
+from scanner.scan.run import run_scan
+from scanner.scan.world import setup_world
 from tests.tiny_scan import TINY_SCAN
 
 # Capture-only: the comparison is about where the arm goes, not the model.
 TINY = {**copy.deepcopy(TINY_SCAN), "reconstruct": False}
 # The RX60 wrist centre reaches at most this far from the shoulder (upper arm + forearm with the
-# elbow offset, Staubli RX60 datasheet lengths in robots.rx60).
+# elbow offset, Staubli RX60 datasheet lengths in robots.models.rx60).
 SHOULDER_TO_WRIST_MAX_M = float(np.hypot(0.290 + 0.310, 0.049))
 SHOULDER_M = np.array([0.0, 0.0, 0.341])
 
@@ -137,8 +137,7 @@ def test_out_of_reach_views_are_listed_with_their_reason(tmp_path, monkeypatch, 
 
 
 def _nominal_X_FC() -> np.ndarray:
-    from robots import camera_tool
-
+    from robots.models import camera_tool
     return camera_tool.nominal_X_FC(_config().camera.stereo_camera().baseline_m)
 
 

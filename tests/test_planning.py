@@ -18,13 +18,13 @@ from planners.planner import (
 )
 from planners.prm import cache_path
 from planners.timing import time_parameterise
-from reconstruction.camera_model import default_stereo_camera
-from reconstruction.errors import ScannerError
-from robots.camera_tool import nominal_X_FC
-from robots.rx60 import RX60
-from robots.sim_robot import SimulatedRobot
-from robots.simulation import HOME_Q
-from robots.workcell import WorkcellConfig, build_workcell
+from reconstruction.common.errors import ScannerError
+from reconstruction.stereo.camera_model import default_stereo_camera
+from robots.models.camera_tool import nominal_X_FC
+from robots.models.rx60 import RX60
+from robots.models.workcell import WorkcellConfig, build_workcell
+from robots.simulation.cell import HOME_Q
+from robots.simulation.robot import SimulatedRobot
 
 # Issue 3: the independent check samples at <= 0.25 deg per joint.
 MAX_STEP_RAD = math.radians(0.25)

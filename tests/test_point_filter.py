@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from robots.camera_tool import nominal_X_FC
-from robots.kinematics import Kinematics
-from robots.point_filter import _bounding_radius, _signed_distance, make_geometry_filter
-from robots.workcell import WorkcellConfig, build_workcell, keep_out_radius_m
+from robots.models.camera_tool import nominal_X_FC
+from robots.models.kinematics import Kinematics
+from robots.models.point_filter import _bounding_radius, _signed_distance, make_geometry_filter
+from robots.models.workcell import WorkcellConfig, build_workcell, keep_out_radius_m
 
 
 def test_primitive_distances():
@@ -76,8 +76,8 @@ def test_the_rod_is_removed_down_to_the_object():
 
 
 def test_objects_hang_from_the_vertical_through_their_centre():
-    from robots.objects import resolve_object
-    from robots.workcell import placed_object
+    from robots.models.objects import resolve_object
+    from robots.models.workcell import placed_object
 
     for name in ("vase", "pebble", "bracket"):
         mesh = resolve_object(name, 0.2)

@@ -5,8 +5,8 @@ import io
 
 import pytest
 
-from reconstruction.stage_timer import StageTimer
-from scanner.progress import STAGE_WEIGHTS, StageProgress
+from reconstruction.common.stage_timer import StageTimer
+from scanner.reconstruct.progress import STAGE_WEIGHTS, StageProgress
 
 
 class Terminal(io.StringIO):

@@ -14,13 +14,13 @@ import pytest
 from report_units import keys_breaking_the_unit_rule
 from scipy.spatial import cKDTree
 
-from reconstruction.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
+from reconstruction.common.transforms import pose_difference
+from reconstruction.evaluation.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
 from reconstruction.pipeline import variant_config
-from reconstruction.transforms import pose_difference
-from scanner.captures import CaptureStore
-from scanner.config import ProcessingConfig, ScanConfig, with_overrides
-from scanner.reconstruct import run_reconstruct
-from scanner.scan import run_scan
+from scanner.reconstruct.stages import run_reconstruct
+from scanner.scan.captures import CaptureStore
+from scanner.scan.config import ProcessingConfig, ScanConfig, with_overrides
+from scanner.scan.run import run_scan
 
 pytestmark = pytest.mark.slow
 
@@ -125,7 +125,7 @@ def test_results_are_written(runs):
 
 
 def test_summary_judges_every_figure_and_tells_the_handeye_story(runs):
-    from scanner.judgement import FIGURES, TRUTH_FIGURES
+    from scanner.reports.judgement import FIGURES, TRUTH_FIGURES
 
     report = runs["corrected"].report
     summary = (runs["corrected"].results_dir / "summary.md").read_text()
@@ -146,7 +146,7 @@ def test_summary_judges_every_figure_and_tells_the_handeye_story(runs):
 
 
 def test_per_view_residuals_show_the_mount_error_before_and_little_after(runs):
-    from scanner.report_plots import per_view_residuals
+    from scanner.reports.plots import per_view_residuals
 
     rows = per_view_residuals(runs["corrected"].result)
     assert len(rows) == len(runs["corrected"].result.views)
@@ -160,7 +160,7 @@ def test_per_view_residuals_show_the_mount_error_before_and_little_after(runs):
 
 
 def test_inspecting_against_the_true_mesh_reproduces_the_report(runs, scan_dir, tmp_path):
-    from scanner.cli import main
+    from scanner.cli.main import main
 
     run = runs["corrected"]
     report = run.report
@@ -204,10 +204,10 @@ def test_a_damaged_capture_is_skipped_and_reported(scan_dir, tmp_path):
 def _rough_mount_calibration(scan_dir, path):
     """The scan's camera with the TRUE X_FC moved 40 mm / 10 deg (a hand-made mount)."""
     from reconstruction.calibration.file import Calibration, save_calibration
-    from reconstruction.metrics import handeye_error
-    from reconstruction.transforms import twist_to_pose
-    from scanner.manifest import open_scan
-    from scanner.scan_views import load_truth_of
+    from reconstruction.common.transforms import twist_to_pose
+    from reconstruction.evaluation.metrics import handeye_error
+    from scanner.reconstruct.scan_views import load_truth_of
+    from scanner.scan.manifest import open_scan
 
     scan = open_scan(scan_dir)
     X_FC_true = load_truth_of(scan_dir)[0].X_FC
@@ -223,7 +223,7 @@ def _rough_mount_calibration(scan_dir, path):
 def test_a_rough_mount_is_corrected_or_flagged_from_the_command_line(scan_dir, tmp_path, capsys):
     import yaml
 
-    from scanner.cli import main
+    from scanner.cli.main import main
 
     calibration = _rough_mount_calibration(scan_dir, tmp_path / "rough.yaml")
     args = ["reconstruct", str(scan_dir), "--calibration", str(calibration)]

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from reconstruction.errors import ScannerError
-from reconstruction.filtering import FilterConfig, RegionOfInterest, filter_view
-from reconstruction.transforms import make_pose
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import make_pose
+from reconstruction.registration.filtering import FilterConfig, RegionOfInterest, filter_view
 
 
 def _plane_C(n: int = 80, spacing_m: float = 0.001, depth_m: float = 0.5) -> np.ndarray:

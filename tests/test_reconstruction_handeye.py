@@ -10,15 +10,15 @@ import pytest
 from synthetic_views import OBJECT_CENTER_W, ROBOT_SIDE, cap_directions, make_scan
 
 from reconstruction.calibration.hand_eye import HAND_EYE_METHODS
-from reconstruction.errors import ScannerError
-from reconstruction.filtering import FilterConfig, RegionOfInterest, filter_view
-from reconstruction.handeye_basin import CoarseHandEyeConfig, coarse_handeye
-from reconstruction.handeye_correction import HandEyeConfig, correct_handeye, solve_axxb
-from reconstruction.handeye_diagnosis import ConvergenceLimits, diagnose
-from reconstruction.handeye_refine import RefineLevel, refine_on_clouds
-from reconstruction.metrics import handeye_error
-from reconstruction.registration import IcpConfig, build_pyramid, select_pairs
-from reconstruction.transforms import make_pose, twist_to_pose
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import make_pose, twist_to_pose
+from reconstruction.evaluation.metrics import handeye_error
+from reconstruction.handeye.basin import CoarseHandEyeConfig, coarse_handeye
+from reconstruction.handeye.correction import HandEyeConfig, correct_handeye, solve_axxb
+from reconstruction.handeye.diagnosis import ConvergenceLimits, diagnose
+from reconstruction.handeye.refine import RefineLevel, refine_on_clouds
+from reconstruction.registration.filtering import FilterConfig, RegionOfInterest, filter_view
+from reconstruction.registration.pairwise import IcpConfig, build_pyramid, select_pairs
 
 X_FC_TRUE = make_pose(np.eye(3), [-0.06, 0.0, 0.08]) @ twist_to_pose(
     [0.01, -0.012, 0.006, 0.002, -0.0015, 0.001]
@@ -158,7 +158,7 @@ def test_coarse_stage_finds_a_rough_mount_and_the_fine_fit_finishes_it(rough_mou
 def test_a_restart_that_loses_all_overlap_is_skipped_not_fatal(rough_mount_scan, monkeypatch):
     # From a turned start the fit can carry the views apart until no match is left (seen on a
     # 3-view scan); the coarse stage then keeps its other fits instead of failing the scan.
-    import reconstruction.handeye_basin as basin
+    import reconstruction.handeye.basin as basin
 
     scan, clouds = rough_mount_scan
     X_WF = [v.X_WF for v in scan.views]

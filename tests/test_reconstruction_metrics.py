@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from reconstruction.metrics import (
+from reconstruction.common.transforms import make_pose, twist_to_pose
+from reconstruction.evaluation.metrics import (
     TriangleSurface,
     distances_to_mesh,
     distances_to_points,
@@ -18,7 +19,6 @@ from reconstruction.metrics import (
     surface_metrics,
     visible_mask,
 )
-from reconstruction.transforms import make_pose, twist_to_pose
 
 
 def _grid(n: int = 60, spacing_m: float = 0.001) -> np.ndarray:

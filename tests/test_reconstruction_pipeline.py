@@ -13,15 +13,15 @@ import numpy as np
 import pytest
 from synthetic_views import OBJECT_CENTER_W, ROBOT_SIDE, cap_directions, make_scan
 
-from reconstruction.errors import ScannerError
-from reconstruction.filtering import FilterConfig, RegionOfInterest
-from reconstruction.metrics import TriangleSurface, evaluate_surface, handeye_error
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import pose_difference, transform_points
+from reconstruction.evaluation.metrics import TriangleSurface, evaluate_surface, handeye_error
 from reconstruction.outputs import save_outputs, summary
 from reconstruction.pipeline import ReconstructionConfig, reconstruct_views, variant_config
-from reconstruction.registration import IcpConfig
-from reconstruction.surfaces import SurfaceConfig
-from reconstruction.transforms import pose_difference, transform_points
-from reconstruction.views import ViewCloud
+from reconstruction.registration.filtering import FilterConfig, RegionOfInterest
+from reconstruction.registration.pairwise import IcpConfig
+from reconstruction.registration.views import ViewCloud
+from reconstruction.surfaces.meshes import SurfaceConfig
 
 # Defaults except what keeps this file at seconds: 4 ICP partners per view (default 6) and
 # Poisson depth 8 (default 9, ~0.8 mm cells instead of ~0.4 mm).
@@ -193,7 +193,7 @@ def test_summary_is_plain_data_and_outputs_are_written(tmp_path, corrected):
 
 def test_reconstruction_does_not_import_drake_or_other_packages():
     code = (
-        "import sys, reconstruction.pipeline, reconstruction.metrics; "
+        "import sys, reconstruction.pipeline, reconstruction.evaluation.metrics; "
         "bad = [m for m in ('pydrake', 'robots', 'planners', 'scanner') if m in sys.modules]; "
         "print(bad); sys.exit(1 if bad else 0)"
     )
@@ -215,7 +215,7 @@ def test_final_pose_graph_polishes_the_corrected_poses(scan):
 def test_config_round_trips_through_the_typed_yaml_loader():
     # The scan directory stores the configuration as YAML; every field must be a type the
     # project's loader knows (numbers, strings, booleans, tuples, nested dataclasses).
-    from scanner.typed_yaml import from_dict, to_dict
+    from reconstruction.common.typed_yaml import from_dict, to_dict
 
     config = replace(CONFIG, final_pose_graph=True)
     data = to_dict(config)
@@ -227,7 +227,7 @@ def test_config_round_trips_through_the_typed_yaml_loader():
 
 def test_variant_clouds_from_one_run(scan, corrected):
     # The benchmark's three variants from one corrected run: re-fuse with each pose set.
-    from reconstruction.metrics import distances_to_mesh
+    from reconstruction.evaluation.metrics import distances_to_mesh
     from reconstruction.pipeline import build_surfaces
 
     truth = TriangleSurface(scan.vertices_W, scan.triangles)
@@ -289,8 +289,8 @@ def test_the_coverage_estimated_beside_the_meshes_is_that_of_the_result(scan):
     """Given where each view's cameras were, the pipeline estimates the coverage while the
     meshes are built: the same figures as estimating it from the finished result, for all
     views and for each hanging alone."""
-    from reconstruction.coverage import coverage_estimate
-    from reconstruction.surfaces import fuse_clouds
+    from reconstruction.evaluation.coverage import coverage_estimate
+    from reconstruction.surfaces.meshes import fuse_clouds
 
     X_CR = np.eye(4)
     X_CR[0, 3] = 0.12

@@ -8,9 +8,14 @@ import numpy as np
 import pytest
 from synthetic_views import OBJECT_CENTER_W, ROBOT_SIDE, cap_directions, look_at, make_scan
 
-from reconstruction.filtering import FilterConfig, RegionOfInterest, filter_view
-from reconstruction.posegraph import PoseEdge, PoseGraphConfig, optimise_pose_graph
-from reconstruction.registration import (
+from reconstruction.common.transforms import (
+    invert,
+    pose_difference,
+    transform_points,
+    twist_to_pose,
+)
+from reconstruction.registration.filtering import FilterConfig, RegionOfInterest, filter_view
+from reconstruction.registration.pairwise import (
     IcpConfig,
     build_pyramid,
     correction_at,
@@ -19,7 +24,7 @@ from reconstruction.registration import (
     register_pair,
     select_pairs,
 )
-from reconstruction.transforms import invert, pose_difference, transform_points, twist_to_pose
+from reconstruction.registration.posegraph import PoseEdge, PoseGraphConfig, optimise_pose_graph
 
 ROI = RegionOfInterest(center_m=tuple(OBJECT_CENTER_W))
 
@@ -189,7 +194,7 @@ def test_pose_graph_prunes_a_wrong_edge_and_keeps_the_gauge():
 
 def test_kinematic_guess_is_target_from_source():
     X_WC = _ring(3)
-    from reconstruction.registration import ViewPair
+    from reconstruction.registration.pairwise import ViewPair
 
     X_TS = kinematic_X_TS(X_WC, ViewPair(2, 0, "loop", 0.0, 1.0))
     p_S = np.array([[0.01, 0.02, 0.5]])

@@ -24,11 +24,10 @@ from synthetic_views import (
     sphere_directions,
 )
 
-from reconstruction.errors import ScannerError
-from reconstruction.filtering import FilterConfig, RegionOfInterest, filter_view
-from reconstruction.mesh_topology import mesh_quality
-from reconstruction.metrics import TriangleSurface, evaluate_surface
-from reconstruction.surfaces import (
+from reconstruction.common.errors import ScannerError
+from reconstruction.evaluation.metrics import TriangleSurface, evaluate_surface
+from reconstruction.registration.filtering import FilterConfig, RegionOfInterest, filter_view
+from reconstruction.surfaces.meshes import (
     DepthView,
     SurfaceConfig,
     SurfaceMesh,
@@ -37,6 +36,7 @@ from reconstruction.surfaces import (
     save_cloud,
     save_mesh,
 )
+from reconstruction.surfaces.topology import mesh_quality
 
 ROI = RegionOfInterest(center_m=tuple(OBJECT_CENTER_W), radius_m=0.1)
 SIZE_M = 0.1
@@ -124,7 +124,7 @@ def test_tsdf_needs_depth_maps(band):
 
 
 def test_cleaning_drops_debris_and_degenerate_faces():
-    from reconstruction.mesh_topology import clean_mesh
+    from reconstruction.surfaces.topology import clean_mesh
 
     big = o3d.geometry.TriangleMesh.create_sphere(0.05, 40)
     debris = o3d.geometry.TriangleMesh.create_tetrahedron(0.001).translate((0.2, 0, 0))
@@ -138,7 +138,7 @@ def test_cleaning_drops_debris_and_degenerate_faces():
 
 
 def test_holes_below_the_data_resolution_are_closed_and_counted_larger_ones_kept():
-    from reconstruction.surfaces import finish_mesh
+    from reconstruction.surfaces.meshes import finish_mesh
 
     # A 0.1 m sphere with ~0.8 mm edges (fine like a Poisson mesh at depth 9), far from the
     # origin like every mesh in W. One missing triangle is a sub-millimetre artefact; a cap of
@@ -162,7 +162,7 @@ def test_holes_below_the_data_resolution_are_closed_and_counted_larger_ones_kept
 
 
 def test_a_filled_hole_that_would_make_the_mesh_non_manifold_stays_open():
-    from reconstruction.mesh_topology import _manifold_patches
+    from reconstruction.surfaces.topology import _manifold_patches
 
     # Two existing triangles share edge (0, 1). Patch A (two added triangles) puts a third
     # triangle on that edge; patch B (one added triangle) touches nothing existing twice.

@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from robots.camera_tool import nominal_X_FC, tool_collision_box, tool_visual_boxes
-from robots.kinematics import Kinematics
-from robots.rx60 import RX60
-from robots.workcell import WorkcellConfig, build_workcell
+from robots.models.camera_tool import nominal_X_FC, tool_collision_box, tool_visual_boxes
+from robots.models.kinematics import Kinematics
+from robots.models.rx60 import RX60
+from robots.models.workcell import WorkcellConfig, build_workcell
 
 DEG = math.pi / 180
 

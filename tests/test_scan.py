@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 import yaml
 
-from reconstruction.errors import ScannerError
-from scanner.captures import CaptureStore
-from scanner.config import ScanConfig, load_scan_config
-from scanner.scan import run_scan
+from reconstruction.common.errors import ScannerError
+from scanner.scan.captures import CaptureStore
+from scanner.scan.config import ScanConfig, load_scan_config
+from scanner.scan.run import run_scan
 from tests.tiny_scan import TINY_SCAN
 
 
@@ -52,8 +52,8 @@ def test_tiny_scan_captures_every_view(tiny_scan):
 
 
 def test_the_scan_prints_its_figures_with_verdicts_and_where_the_summary_is(tiny_scan):
-    from scanner.cli import scan_result_lines
-    from scanner.judgement import FIGURES
+    from scanner.cli.main import scan_result_lines
+    from scanner.reports.judgement import FIGURES
 
     lines = scan_result_lines(tiny_scan)
     r = tiny_scan.report
@@ -65,7 +65,7 @@ def test_the_scan_prints_its_figures_with_verdicts_and_where_the_summary_is(tiny
 
 
 def test_captures_record_the_pose_they_were_taken_at(tiny_scan):
-    from robots.kinematics import Kinematics
+    from robots.models.kinematics import Kinematics
 
     store = CaptureStore.open(tiny_scan.scan_dir)
     kin = Kinematics()
@@ -192,7 +192,7 @@ def test_a_scan_runs_on_a_hardware_driver(tiny_config_file, tmp_path):
     [
         ("no_such_module:connect", "cannot import 'no_such_module'"),
         ("tests.simulated_hardware:nothing", "has no callable 'nothing'"),
-        ("tests.simulated_hardware:not_hardware", "expected robots.drivers.Hardware"),
+        ("tests.simulated_hardware:not_hardware", "expected robots.drivers.interfaces.Hardware"),
         ("tests.simulated_hardware", "expected 'package.module:factory'"),
     ],
 )
@@ -223,7 +223,7 @@ def test_resume_of_a_complete_scan_changes_nothing(tiny_scan):
 
 
 def test_resume_compares_only_the_options_given():
-    from scanner.config import resume_request
+    from scanner.scan.config import resume_request
 
     saved = replace(ScanConfig(object="bracket"), views=replace(ScanConfig().views, count=7))
     assert resume_request(saved, None) == saved
@@ -233,7 +233,7 @@ def test_resume_compares_only_the_options_given():
 
 
 def test_resume_with_a_config_file_compares_only_its_keys(tmp_path):
-    from scanner.config import resume_request
+    from scanner.scan.config import resume_request
 
     saved = ScanConfig(object="bracket")
     path = tmp_path / "views.yaml"

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from reconstruction.stereo.rectification import compute_rectification, rectify_pair
-from robots.sim_camera import distortion_maps
+from robots.simulation.stereo_camera import distortion_maps
 
 
 @pytest.fixture(scope="module")
@@ -108,9 +108,9 @@ def test_rectified_shift_equals_f_b_over_z(vase_sim, pair_and_truth):
 
 
 def test_same_seed_same_images_different_seed_different_noise(view_q):
-    from robots.simulation import create_simulation
-    from robots.truth import ErrorModel
-    from robots.workcell import WorkcellConfig
+    from robots.models.workcell import WorkcellConfig
+    from robots.simulation.cell import create_simulation
+    from robots.simulation.truth import ErrorModel
 
     def first_pair(seed):
         sim = create_simulation(WorkcellConfig(), "vase", ErrorModel(seed=seed))
@@ -124,9 +124,9 @@ def test_same_seed_same_images_different_seed_different_noise(view_q):
 
 
 def test_sensor_noise_has_the_error_models_spread_and_no_bias(view_q):
-    from robots.simulation import create_simulation
-    from robots.truth import ErrorModel
-    from robots.workcell import WorkcellConfig
+    from robots.models.workcell import WorkcellConfig
+    from robots.simulation.cell import create_simulation
+    from robots.simulation.truth import ErrorModel
 
     def first_pair(noise_std):
         sim = create_simulation(

@@ -2,7 +2,7 @@
 
 import time
 
-from reconstruction.stage_timer import StageTimer, cpu_seconds
+from reconstruction.common.stage_timer import StageTimer, cpu_seconds
 
 
 def _busy(cpu_s: float) -> None:

@@ -12,7 +12,7 @@ from reconstruction.stereo.cloud import stereo_cloud, to_open3d
 from reconstruction.stereo.metrics import stereo_accuracy
 from reconstruction.stereo.params import StereoParams, disparity_window, object_depth_window
 from reconstruction.stereo.rectification import compute_rectification
-from robots.workcell import keep_out_radius_m
+from robots.models.workcell import keep_out_radius_m
 
 VIEW_DISTANCE_M = 0.5  # the preview's viewpoint radius (conftest.view_q)
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from reconstruction.camera_model import default_stereo_camera
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
+from reconstruction.stereo.camera_model import default_stereo_camera
 from reconstruction.stereo.cloud import stereo_cloud
 from reconstruction.stereo.matching import compute_disparity
 from reconstruction.stereo.params import StereoParams, disparity_window, object_depth_window

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from reconstruction.camera_model import default_stereo_camera
+from reconstruction.stereo.camera_model import default_stereo_camera
 from reconstruction.stereo.cloud import points_from_disparity, reproject
 from reconstruction.stereo.matching import compute_disparity
 from reconstruction.stereo.params import disparity_window
@@ -25,7 +25,7 @@ def test_project_and_reproject_round_trip(verged):
     """p_C -> distorted pixels in both cameras -> rectified -> (u, v, d) -> Q, R1^T -> p_C."""
     model = default_stereo_camera()
     if verged:  # a real rig is never perfectly parallel: 1 deg toe-in, 2 mm height offset
-        from reconstruction.camera_model import StereoCamera
+        from reconstruction.stereo.camera_model import StereoCamera
 
         angle = np.radians(1.0)
         R = np.array(

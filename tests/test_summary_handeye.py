@@ -1,6 +1,6 @@
 """summary.md says whether the hand-eye correction converged, and warns prominently when not."""
 
-from scanner.report import handeye_warning, write_summary
+from scanner.reports.summary import handeye_warning, write_summary
 
 
 def _report(converged: bool) -> dict:

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from reconstruction.errors import ScannerError
-from reconstruction.surface_rbf import RbfParams, rbf_surface
-from reconstruction.surfaces import FusedCloud, SurfaceConfig, build_surface, rbf_params
+from reconstruction.common.errors import ScannerError
+from reconstruction.surfaces.meshes import FusedCloud, SurfaceConfig, build_surface, rbf_params
+from reconstruction.surfaces.rbf import RbfParams, rbf_surface
 
 RADIUS_M = 0.05
 # The cap z >= 0.5 R of the sphere (a third of its height; area pi R^2 = 79 cm^2): what one side

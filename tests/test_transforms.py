@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from reconstruction.transforms import (
+from reconstruction.common.transforms import (
     invert,
     make_pose,
     matrix_to_rotvec,

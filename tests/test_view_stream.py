@@ -7,13 +7,13 @@ import yaml
 
 from reconstruction.pipeline import filter_views
 from reconstruction.stereo.rectification import compute_rectification
-from scanner.config import load_scan_config
-from scanner.decision import ViewOutcome
-from scanner.manifest import open_scan
-from scanner.reconstruct import run_reconstruct
-from scanner.scan import run_scan
-from scanner.scan_views import capture_views, geometry_filter, with_roi_centre
-from scanner.view_stream import ViewStream, processing_hidden_s
+from scanner.reconstruct.scan_views import capture_views, geometry_filter, with_roi_centre
+from scanner.reconstruct.stages import run_reconstruct
+from scanner.scan.config import load_scan_config
+from scanner.scan.decision import ViewOutcome
+from scanner.scan.manifest import open_scan
+from scanner.scan.run import run_scan
+from scanner.scan.view_stream import ViewStream, processing_hidden_s
 from tests.tiny_scan import TINY_SCAN
 
 
@@ -74,7 +74,7 @@ def test_the_scans_model_equals_an_offline_reconstruction(streamed_scan, tmp_pat
 def test_streamed_views_made_with_other_settings_are_not_used(streamed_scan, tmp_path):
     from dataclasses import replace
 
-    from scanner.reconstruct import _streamed_for
+    from scanner.reconstruct.stages import _streamed_for
 
     scan = open_scan(streamed_scan.scan_dir)
     stream = ViewStream(scan)

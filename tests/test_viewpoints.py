@@ -7,9 +7,9 @@ import pytest
 
 from planners.ik import Viewpoint
 from planners.tour import plan_tour, tour_cost
-from reconstruction.errors import ScannerError
-from scanner.sampling import fibonacci_directions
-from scanner.viewpoints import PlannedView, ViewOption, ViewpointConfig, generate_viewpoints
+from reconstruction.common.errors import ScannerError
+from scanner.scan.sampling import fibonacci_directions
+from scanner.scan.viewpoints import PlannedView, ViewOption, ViewpointConfig, generate_viewpoints
 
 
 def _min_angle(d):

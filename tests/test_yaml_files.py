@@ -8,8 +8,8 @@ import math
 import pytest
 import yaml
 
-from reconstruction.errors import ScannerError
-from reconstruction.yaml_files import read_yaml, yaml_text
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.yaml_files import read_yaml, yaml_text
 
 RECORD = {
     "schema": 3,

@@ -18,7 +18,7 @@ from reconstruction.calibration.boards import (
     Detection,
     as_gray,
 )
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
 
 BOARD_KINDS = ("charuco", "chessboard", "circles_asymmetric")
 

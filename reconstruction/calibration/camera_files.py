@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from reconstruction.camera_model import CameraModelError, PinholeCamera, StereoCamera
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
+from reconstruction.stereo.camera_model import CameraModelError, PinholeCamera, StereoCamera
 
 # OpenCV's distortion vector lengths (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4 [tx ty]]]]); the
 # product's model has the first five, so longer vectors are taken only when the rest is zero.

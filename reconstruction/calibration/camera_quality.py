@@ -17,7 +17,7 @@ import numpy as np
 
 from reconstruction.calibration.boards import Detection
 from reconstruction.calibration.observations import PoseObservation
-from reconstruction.camera_model import PinholeCamera, StereoCamera
+from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera
 from reconstruction.stereo.rectification import compute_rectification
 
 

@@ -15,8 +15,8 @@ from reconstruction.calibration.camera_files import (
     distortion5,
     stereo_from,
 )
-from reconstruction.camera_model import StereoCamera
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
+from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.stereo.rectification import compute_rectification
 
 OPENCV_INTRINSICS = "intrinsics.yml"

@@ -10,10 +10,10 @@ import numpy as np
 import yaml
 
 from reconstruction.calibration.camera_files import camera_from, distortion5, stereo_from
-from reconstruction.camera_model import StereoCamera
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.yaml_files import read_yaml
+from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.stereo.rectification import compute_rectification
-from reconstruction.yaml_files import read_yaml
 
 ROS_LEFT = "left.yaml"
 ROS_RIGHT = "right.yaml"

@@ -13,9 +13,9 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from reconstruction.errors import ScannerError
-from reconstruction.transforms import check_pose, make_pose
-from reconstruction.yaml_files import read_yaml
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import check_pose, make_pose
+from reconstruction.common.yaml_files import read_yaml
 
 HAND_EYE_TF = "hand_eye_tf.yaml"
 # ROS names: a letter first, then letters, digits and underscores, '/' between name parts; tf2

@@ -40,9 +40,9 @@ from reconstruction.calibration.refine import (
     sensor_points,
 )
 from reconstruction.calibration.settings import CalibrationSettings
-from reconstruction.camera_model import PinholeCamera, StereoCamera
-from reconstruction.errors import ScannerError
-from reconstruction.transforms import mean_pose
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import mean_pose
+from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera
 
 
 @dataclass(frozen=True, eq=False)

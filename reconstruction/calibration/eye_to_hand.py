@@ -23,10 +23,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from reconstruction.camera_model import StereoCamera
-from reconstruction.checks import check_fields, integer, positive
-from reconstruction.errors import ScannerError
-from reconstruction.transforms import make_pose, transform_points
+from reconstruction.common.checks import check_fields, integer, positive
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import make_pose, transform_points
+from reconstruction.stereo.camera_model import StereoCamera
 
 
 @dataclass(frozen=True)

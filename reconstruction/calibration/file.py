@@ -32,15 +32,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from reconstruction.camera_model import (
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.yaml_files import read_yaml
+from reconstruction.stereo.camera_model import (
     CameraModelError,
     PinholeCamera,
     StereoCamera,
     stereo_camera_from_dict,
     stereo_camera_to_dict,
 )
-from reconstruction.errors import ScannerError
-from reconstruction.yaml_files import read_yaml
 
 CALIBRATION_SCHEMA = "scanner.calibration/1"
 

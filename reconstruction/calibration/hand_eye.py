@@ -17,8 +17,8 @@ import cv2
 import numpy as np
 
 from reconstruction.calibration.settings import CalibrationSettings
-from reconstruction.errors import ScannerError
-from reconstruction.transforms import make_pose, matrix_to_rotvec, rotation_angle_rad
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import make_pose, matrix_to_rotvec, rotation_angle_rad
 
 # OpenCV's AX = XB solvers, by the names this product uses in files and on the command line.
 HAND_EYE_METHODS: dict[str, int] = {

@@ -12,8 +12,8 @@ import numpy as np
 from reconstruction.calibration.boards import BoardSpec, Detection
 from reconstruction.calibration.observations import PoseObservation, board_correspondences
 from reconstruction.calibration.settings import CalibrationSettings
-from reconstruction.camera_model import PinholeCamera, StereoCamera
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
+from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera
 
 
 @dataclass(frozen=True, eq=False)

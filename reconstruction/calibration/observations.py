@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 
 from reconstruction.calibration.boards import BoardSpec, Detection
-from reconstruction.camera_model import PinholeCamera
-from reconstruction.transforms import check_pose, pose_from_rvec_tvec
+from reconstruction.common.transforms import check_pose, pose_from_rvec_tvec
+from reconstruction.stereo.camera_model import PinholeCamera
 
 
 @dataclass(frozen=True, eq=False)

@@ -27,9 +27,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from reconstruction.errors import ScannerError
-from reconstruction.transforms import invert as inverse_pose
-from reconstruction.transforms import make_pose
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import invert as inverse_pose
+from reconstruction.common.transforms import make_pose
 
 POSE_LAYOUTS: dict[str, tuple[int, ...]] = {
     "matrix": (16, 12),

@@ -16,8 +16,8 @@ from scipy.sparse import lil_matrix
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.observations import PoseObservation
 from reconstruction.calibration.settings import CalibrationSettings
-from reconstruction.camera_model import PinholeCamera, StereoCamera, project_points
-from reconstruction.transforms import invert, transform_points, twist_to_pose
+from reconstruction.common.transforms import invert, transform_points, twist_to_pose
+from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera, project_points
 
 
 @dataclass(frozen=True, eq=False)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from reconstruction.checks import require_count, require_positive
-from reconstruction.errors import ScannerError
-from reconstruction.robust_loss import check_loss
+from reconstruction.common.checks import require_count, require_positive
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.robust_loss import check_loss
 
 
 @dataclass(frozen=True)

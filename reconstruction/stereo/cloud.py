@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from reconstruction.registration.views import DepthImage
 from reconstruction.stereo.matching import check_pair, disparity_image, grey_image
 from reconstruction.stereo.params import StereoParams, disparity_window, object_depth_window
 from reconstruction.stereo.rectification import Rectification, rectify_pair
-from reconstruction.views import DepthImage
 
 
 @dataclass(frozen=True, eq=False)

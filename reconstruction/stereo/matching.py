@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
 from reconstruction.stereo.filters import (
     jump_mask,
     left_right_mask,

@@ -24,8 +24,8 @@ from dataclasses import dataclass, fields
 
 import cv2
 
-from reconstruction.checks import check_fields, integer, non_negative, require_choice
-from reconstruction.errors import ScannerError
+from reconstruction.common.checks import check_fields, integer, non_negative, require_choice
+from reconstruction.common.errors import ScannerError
 
 SGBM_MODES = {
     "SGBM": cv2.STEREO_SGBM_MODE_SGBM,

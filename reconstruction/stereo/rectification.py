@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from reconstruction.camera_model import StereoCamera
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
+from reconstruction.stereo.camera_model import StereoCamera
 
 
 @dataclass(frozen=True, eq=False)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from scanner.arguments import (
+from scanner.cli.arguments import (
     ConfigDefault,
     add_config_option,
     add_driver_argument,

@@ -24,11 +24,11 @@ from reconstruction.calibration.file import Calibration, save_calibration
 from reconstruction.calibration.intrinsics import calibrate_camera, calibrate_stereo
 from reconstruction.calibration.observations import PoseObservation
 from reconstruction.calibration.settings import CalibrationSettings
-from reconstruction.errors import ScannerError
-from robots.camera_tool import nominal_X_FC
+from reconstruction.common.errors import ScannerError
+from robots.models.camera_tool import nominal_X_FC
 from scanner.calibrate.solve import no_board_anywhere
-from scanner.captures import atomic_write_text
-from scanner.results_folder import require_replaceable, staged_folder
+from scanner.reconstruct.results_folder import require_replaceable, staged_folder
+from scanner.scan.captures import atomic_write_text
 
 CALIBRATION_FILE = "calibration.yaml"
 

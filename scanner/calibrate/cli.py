@@ -10,8 +10,7 @@ from pathlib import Path
 
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.pose_files import pose_format
-from reconstruction.errors import ScannerError
-from scanner.arguments import for_flag
+from reconstruction.common.errors import ScannerError
 from scanner.calibrate.config import CalibrateConfig, load_calibrate_config
 from scanner.calibrate.eye_in_hand import run_eye_in_hand
 from scanner.calibrate.eye_to_hand import run_eye_to_hand, solve_eye_to_hand_directory
@@ -22,8 +21,9 @@ from scanner.calibrate.offline import (
     cameras_only_images,
 )
 from scanner.calibrate.report import error_text
-from scanner.progress import ProgressBar
-from scanner.results_folder import require_replaceable
+from scanner.cli.arguments import for_flag
+from scanner.reconstruct.progress import ProgressBar
+from scanner.reconstruct.results_folder import require_replaceable
 
 
 def _board_size(text: str) -> tuple[int, int]:

@@ -10,16 +10,16 @@ from planners.planner import PlannerConfig
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.eye_to_hand import MarkerDetectionSettings
 from reconstruction.calibration.settings import CalibrationSettings
-from reconstruction.camera_model import StereoDesign
-from reconstruction.checks import check_fields, integer, positive
-from reconstruction.errors import ScannerError
-from robots.blinking_marker import MarkerConfig
-from robots.calibration_board import BoardPlacement
-from robots.static_camera import StaticCameraConfig
-from robots.truth import MAX_SEED, ErrorModel
-from robots.workcell import WorkcellConfig
+from reconstruction.common.checks import check_fields, integer, positive
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.typed_yaml import load_yaml_file
+from reconstruction.stereo.camera_model import StereoDesign
+from robots.models.calibration_board import BoardPlacement
+from robots.models.workcell import WorkcellConfig
+from robots.simulation.blinking_marker import MarkerConfig
+from robots.simulation.static_camera import StaticCameraConfig
+from robots.simulation.truth import MAX_SEED, ErrorModel
 from scanner.calibrate.stations import StationConfig
-from scanner.typed_yaml import load_yaml_file
 
 
 def _default_board() -> BoardSpec:
@@ -73,7 +73,7 @@ class CalibrateConfig:
     eye_to_hand: EyeToHandConfig = field(default_factory=EyeToHandConfig)
     # Stations are in open space in front of the robot: a smaller roadmap than a scan's does.
     planner: PlannerConfig = field(default_factory=lambda: PlannerConfig(roadmap_milestones=400))
-    # Real hardware for eye-in-hand runs: 'package.module:factory' (see robots.drivers.Hardware);
+    # Real hardware for eye-in-hand runs: 'package.module:factory' (see robots.drivers.interfaces.Hardware);
     # the board then stands where `placement` says. None: the Drake simulation.
     driver: str | None = None
 

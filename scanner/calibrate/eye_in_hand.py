@@ -13,28 +13,28 @@ from pathlib import Path
 import numpy as np
 
 from planners.planner import PlanFailure, Planner
-from reconstruction.camera_model import (
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.typed_yaml import to_dict
+from reconstruction.stereo.camera_model import (
     StereoCamera,
     stereo_camera_to_dict,
 )
-from reconstruction.errors import ScannerError
-from robots import camera_tool
-from robots.calibration_board import (
+from robots.drivers.interfaces import Hardware, RobotDriver, StereoCameraDriver, load_hardware
+from robots.models import camera_tool
+from robots.models.calibration_board import (
     BoardFixture,
     board_fingerprint,
     write_board_obj,
 )
-from robots.drivers import Hardware, RobotDriver, StereoCameraDriver, load_hardware
-from robots.kinematics import Kinematics
-from robots.simulation import Simulation, cache_dir, create_simulation
-from robots.truth import save_truth
-from robots.workcell import build_workcell
+from robots.models.kinematics import Kinematics
+from robots.models.workcell import build_workcell
+from robots.simulation.cell import Simulation, cache_dir, create_simulation
+from robots.simulation.truth import save_truth
 from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.offline import OfflineOptions, calibrate_directory
 from scanner.calibrate.solve import CalibrationRun
 from scanner.calibrate.stations import plan_stations
-from scanner.captures import Capture, CaptureStore, atomic_write_text, require_same_settings
-from scanner.typed_yaml import to_dict
+from scanner.scan.captures import Capture, CaptureStore, atomic_write_text, require_same_settings
 
 # Moves the arm to a configuration; False when it could not (the station is skipped).
 MoveFn = Callable[[np.ndarray], bool]

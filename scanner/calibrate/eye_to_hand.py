@@ -22,12 +22,12 @@ from reconstruction.calibration.eye_to_hand import (
     held_out_errors,
     triangulate,
 )
-from reconstruction.camera_model import StereoCamera, stereo_camera_to_dict
-from reconstruction.errors import ScannerError
-from reconstruction.transforms import make_pose, pose_difference, transform_points
-from robots.blinking_marker import BlinkingMarker
-from robots.simulation import cache_dir
-from robots.static_camera import StaticStereoCamera
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import make_pose, pose_difference, transform_points
+from reconstruction.stereo.camera_model import StereoCamera, stereo_camera_to_dict
+from robots.simulation.blinking_marker import BlinkingMarker
+from robots.simulation.cell import cache_dir
+from robots.simulation.static_camera import StaticStereoCamera
 from scanner.calibrate.config import CalibrateConfig, EyeToHandConfig
 from scanner.calibrate.eye_in_hand import MoveFn, PlannedMover, build_world
 from scanner.calibrate.eye_to_hand_store import (
@@ -39,9 +39,9 @@ from scanner.calibrate.eye_to_hand_store import (
     write_manifest,
     write_point,
 )
-from scanner.captures import atomic_write_text
-from scanner.results_folder import free_results_dir, require_replaceable, staged_folder
-from scanner.units import deg, mm
+from scanner.reconstruct.results_folder import free_results_dir, require_replaceable, staged_folder
+from scanner.reports.units import deg, mm
+from scanner.scan.captures import atomic_write_text
 
 
 @dataclass(frozen=True, eq=False)

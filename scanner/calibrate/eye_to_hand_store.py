@@ -25,14 +25,14 @@ import numpy as np
 import yaml
 
 from reconstruction.calibration.pose_files import PoseFormat, read_pose_file
-from reconstruction.camera_model import (
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.yaml_files import read_yaml
+from reconstruction.stereo.camera_model import (
     StereoCamera,
     stereo_camera_from_dict,
     stereo_camera_to_dict,
 )
-from reconstruction.errors import ScannerError
-from reconstruction.yaml_files import read_yaml
-from scanner.captures import atomic_write_text
+from scanner.scan.captures import atomic_write_text
 
 MANIFEST = "eye_to_hand_points.yaml"
 SCHEMA = "scanner.eye_to_hand_points/1"

@@ -7,7 +7,7 @@ board, an arm of the RX60's class); each band's reason is in its definition.
 
 from __future__ import annotations
 
-from scanner.judgement import Figure
+from scanner.reports.judgement import Figure
 
 BANDS = {
     "reprojection_rms_px": Figure(

@@ -26,17 +26,17 @@ from reconstruction.calibration.pose_files import (
     read_pose_list,
 )
 from reconstruction.calibration.settings import CalibrationSettings
-from reconstruction.camera_model import PinholeCamera, StereoCamera, stereo_camera_from_dict
-from reconstruction.errors import RefusedResultError, ScannerError
-from reconstruction.yaml_files import read_yaml
-from robots.truth import load_truth
+from reconstruction.common.errors import RefusedResultError, ScannerError
+from reconstruction.common.typed_yaml import from_dict
+from reconstruction.common.yaml_files import read_yaml
+from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera, stereo_camera_from_dict
+from robots.simulation.truth import load_truth
 from scanner.calibrate.cameras_only import CamerasRun, calibrate_cameras, require_board_size
 from scanner.calibrate.corners import ImageLoader, rank_pictures
 from scanner.calibrate.report import CALIBRATION_FILE, build_report, truth_errors, write_results
 from scanner.calibrate.solve import CalibrationRun, Solution, solve
-from scanner.captures import CaptureStore
-from scanner.results_folder import free_results_dir, require_replaceable
-from scanner.typed_yaml import from_dict
+from scanner.reconstruct.results_folder import free_results_dir, require_replaceable
+from scanner.scan.captures import CaptureStore
 
 IMAGE_SUFFIXES = (".png", ".bmp", ".jpg", ".jpeg", ".tif", ".tiff")
 

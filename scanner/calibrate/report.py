@@ -1,5 +1,5 @@
 """Calibration reports: report.json and report.txt (accuracy figures in mm and degrees, poses in
-metres: the rule of scanner.units), and the errors against the simulator's truth."""
+metres: the rule of scanner.reports.units), and the errors against the simulator's truth."""
 
 from __future__ import annotations
 
@@ -11,16 +11,16 @@ import numpy as np
 
 from reconstruction.calibration.camera_quality import epipolar_error
 from reconstruction.calibration.file import save_calibration
-from reconstruction.camera_model import StereoCamera
-from reconstruction.metrics import handeye_error
-from reconstruction.transforms import matrix_to_rotvec
+from reconstruction.common.transforms import matrix_to_rotvec
+from reconstruction.evaluation.metrics import handeye_error
+from reconstruction.stereo.camera_model import StereoCamera
 from scanner.calibrate.corners import CornerPicture, ImageLoader, write_pictures
 from scanner.calibrate.judge import figure_lines, overall
 from scanner.calibrate.sigma_check import error_in_sigmas
 from scanner.calibrate.solve import Solution, x_fc_sigma_record
-from scanner.captures import atomic_write_text
-from scanner.results_folder import staged_folder
-from scanner.units import deg, mm
+from scanner.reconstruct.results_folder import staged_folder
+from scanner.reports.units import deg, mm
+from scanner.scan.captures import atomic_write_text
 
 CALIBRATION_FILE = "calibration.yaml"
 

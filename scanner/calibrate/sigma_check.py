@@ -21,9 +21,9 @@ import numpy as np
 
 from reconstruction.calibration.boards import BoardSpec, Detection
 from reconstruction.calibration.observations import PoseObservation
-from reconstruction.camera_model import StereoCamera, project_points
-from reconstruction.transforms import invert, pose_to_twist, transform_points
-from robots.truth import ErrorModel, sample_truth
+from reconstruction.common.transforms import invert, pose_to_twist, transform_points
+from reconstruction.stereo.camera_model import StereoCamera, project_points
+from robots.simulation.truth import ErrorModel, sample_truth
 
 SIGMA_BOUND = 3.0
 # findChessboardCornersSB on the simulator's 1280x960 renders: ~0.03 px per coordinate.

@@ -21,9 +21,9 @@ from reconstruction.calibration.intrinsics import (
 )
 from reconstruction.calibration.observations import PoseObservation
 from reconstruction.calibration.settings import CalibrationSettings
-from reconstruction.camera_model import PinholeCamera, StereoCamera
-from reconstruction.errors import ScannerError
-from scanner.typed_yaml import to_dict
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.typed_yaml import to_dict
+from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera
 
 
 def no_board_anywhere(board: BoardSpec, observations) -> str:

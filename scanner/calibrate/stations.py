@@ -20,11 +20,11 @@ import numpy as np
 
 from planners.ik import Viewpoint, camera_pose, rig_centre_offset
 from reconstruction.calibration.boards import BoardSpec
-from reconstruction.camera_model import StereoCamera, project_points
-from reconstruction.checks import check_fields, integer, non_negative, require_count
-from reconstruction.errors import ScannerError
-from reconstruction.transforms import invert, rotation_angles_rad, transform_points
-from scanner.sampling import farthest_point_sample
+from reconstruction.common.checks import check_fields, integer, non_negative, require_count
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import invert, rotation_angles_rad, transform_points
+from reconstruction.stereo.camera_model import StereoCamera, project_points
+from scanner.scan.sampling import farthest_point_sample
 
 ReachableFn = Callable[[Viewpoint], list[np.ndarray]]
 

@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from reconstruction.checks import check_fields, integer, positive
-from reconstruction.errors import ScannerError
-from robots.camera_tool import tool_visual_boxes
-from robots.static_camera import StaticCameraConfig
+from reconstruction.common.checks import check_fields, integer, positive
+from reconstruction.common.errors import ScannerError
+from robots.models.camera_tool import tool_visual_boxes
+from robots.simulation.static_camera import StaticCameraConfig
 from scanner.monitor.detector import Detection, IntrusionDetector, MonitorConfig
 from scanner.monitor.ee_tracker import EndEffectorTracker, TrackerConfig
 from scanner.monitor.stereo_point import StereoRig
@@ -49,7 +49,7 @@ class MonitorSettings:
     capture_dwell_s: float = positive(0.2)
     max_lag_s: float = positive(0.5)
     max_wait_s: float = positive(120.0)
-    # Seed of the simulated intruders' paths (robots.cell_video.default_intruder_paths).
+    # Seed of the simulated intruders' paths (robots.simulation.cell_video.video.default_intruder_paths).
     intruder_seed: int = integer(0, minimum=0)
 
     def __post_init__(self) -> None:

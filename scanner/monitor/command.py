@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from scanner.arguments import path_arg, positive_float, seconds_list
+from scanner.cli.arguments import path_arg, positive_float, seconds_list
 
 DEFAULT_DURATION_S = 10.0
 
@@ -40,10 +40,10 @@ def add_monitor_parser(sub) -> None:
 
 
 def run_monitor_command(args: argparse.Namespace) -> int:
-    from reconstruction.errors import ScannerError
-    from scanner.config import load_scan_config, with_overrides
+    from reconstruction.common.errors import ScannerError
     from scanner.monitor.scan_monitor import ScanMonitor
-    from scanner.world import setup_world
+    from scanner.scan.config import load_scan_config, with_overrides
+    from scanner.scan.world import setup_world
 
     config = with_overrides(
         load_scan_config(args.config), monitor=True, intruder_start_s=args.intruder

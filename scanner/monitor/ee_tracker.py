@@ -37,10 +37,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from reconstruction.checks import check_fields, integer, positive
-from reconstruction.errors import ScannerError
+from reconstruction.common.checks import check_fields, integer, positive
+from reconstruction.common.errors import ScannerError
 from scanner.monitor.stereo_point import StereoRig, project_W, triangulate_W
-from scanner.units import mm
+from scanner.reports.units import mm
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from robots.drivers import JointTrajectory, RobotDriver, StereoCameraDriver, StereoImages
+from robots.drivers.interfaces import JointTrajectory, RobotDriver, StereoCameraDriver, StereoImages
 from scanner.monitor.cell_monitor import CellMonitor, MonitorStoppedError
 
 

@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 
-from reconstruction.errors import ScannerError
-from robots.kinematics import Kinematics
+from reconstruction.common.errors import ScannerError
+from robots.models.kinematics import Kinematics
 from scanner.monitor.cell_monitor import CellMonitor, MonitorSettings
 from scanner.monitor.ee_tracker import tracking_errors
 from scanner.monitor.guard import MonitoredCamera, MonitoredRobot
@@ -21,9 +21,9 @@ MATCH_WINDOW_S = 0.5
 
 
 def intruder_paths(settings: MonitorSettings) -> tuple:
-    """The simulated intruders of a monitored scan (robots.cell_video.IntruderPath), drawn from
+    """The simulated intruders of a monitored scan (robots.simulation.cell_video.video.IntruderPath), drawn from
     the settings' start times and seed, reaching into the configured monitored volume."""
-    from robots.cell_video import CellVolume, default_intruder_paths
+    from robots.simulation.cell_video.video import CellVolume, default_intruder_paths
 
     d = settings.detection
     volume = CellVolume(d.volume_min_m, d.volume_max_m)
@@ -61,7 +61,7 @@ class ScanMonitor:
 
     def start(self, world) -> None:
         """A new video for the world's current hanging, warmed up with the arm still."""
-        from robots.cell_video import CellVideo
+        from robots.simulation.cell_video.video import CellVideo
 
         if world.sim is None:
             raise ScannerError(

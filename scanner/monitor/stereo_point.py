@@ -13,11 +13,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from reconstruction.camera_model import StereoCamera, project_points
-from reconstruction.errors import ScannerError
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import invert, transform_points
+from reconstruction.stereo.camera_model import StereoCamera, project_points
 from reconstruction.stereo.cloud import points_from_disparity
 from reconstruction.stereo.rectification import Rectification, compute_rectification
-from reconstruction.transforms import invert, transform_points
 
 
 def _pose(X, name: str) -> np.ndarray:

@@ -1,0 +1,125 @@
+"""YAML <-> frozen dataclasses: one loader that rejects unknown keys and checks types by field.
+
+The constructor of each dataclass runs, so every `__post_init__` validation applies to loaded
+files exactly as to code-built configs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import re
+import types
+import typing
+from pathlib import Path
+
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.yaml_files import read_yaml
+
+
+def _at(where: str, keys: str) -> str:
+    """`file: key.path` (the file, then where in it), or the file alone at the top."""
+    return f"{where}: {keys}" if keys else where
+
+
+def _key(keys: str, name: str) -> str:
+    return f"{keys}.{name}" if keys else name
+
+
+def _convert(tp, value, where: str, keys: str):
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        (inner,) = [a for a in args if a is not type(None)]
+        return _convert(inner, value, where, keys)
+    if dataclasses.is_dataclass(tp):
+        return _from_dict(tp, value, where, keys)
+    at = _at(where, keys)
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if not isinstance(value, list | tuple):
+            raise ScannerError(f"{at}: expected a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(args[0], v, where, f"{keys}[{i}]") for i, v in enumerate(value))
+        if len(args) != len(value):
+            raise ScannerError(f"{at}: expected {len(args)} values, got {len(value)}")
+        return tuple(
+            _convert(a, v, where, f"{keys}[{i}]") for i, (a, v) in enumerate(zip(args, value))
+        )
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ScannerError(f"{at}: expected a number, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ScannerError(f"{at}: expected an integer, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ScannerError(f"{at}: expected true or false, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ScannerError(f"{at}: expected a string, got {value!r}")
+        return value
+    raise TypeError(f"{at}: unsupported field type {tp}")
+
+
+def from_dict(cls, data, where: str):
+    """Build dataclass `cls` from a mapping; missing keys take the defaults. Errors read
+    `where: key.path: what was expected` (`where` is usually the file)."""
+    return _from_dict(cls, data, where, "")
+
+
+# A record's own check names the field as `section.name`, its section being the record's usual
+# key (`views.count`); the loader knows the real key path of the record in the file.
+_FIELD = re.compile(r"([A-Za-z_][\w.]*)\.(\w+): ")
+
+
+def _unknown_keys(unknown: list[str], names: set[str]) -> str:
+    valid = sorted(names)
+    guesses = [m for k in unknown for m in difflib.get_close_matches(k, valid, n=1)]
+    hint = f" (did you mean {', '.join(guesses)}?)" if guesses else ""
+    return f"unknown key(s) {', '.join(unknown)}{hint}; valid keys: {', '.join(valid)}"
+
+
+def _from_dict(cls, data, where: str, keys: str):
+    if not isinstance(data, dict):
+        raise ScannerError(f"{_at(where, keys)}: expected a mapping, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(str(k) for k in set(data) - names)
+    if unknown:
+        raise ScannerError(f"{_at(where, keys)}: {_unknown_keys(unknown, names)}")
+    kwargs = {k: _convert(hints[k], v, where, _key(keys, k)) for k, v in data.items()}
+    try:
+        return cls(**kwargs)
+    except ScannerError as e:
+        message = str(e)
+        field = _FIELD.match(message)
+        if field and field.group(2) in names:
+            message = f"{_key(keys, field.group(2))}: {message[field.end() :]}"
+        elif keys:
+            last = keys.rsplit(".", 1)[-1]
+            own = message.startswith(f"{last}:")
+            message = f"{keys}{message[len(last) :]}" if own else f"{keys}: {message}"
+        raise type(e)(f"{where}: {message}") from None
+
+
+def to_dict(obj) -> dict:
+    """Plain YAML-ready mapping of a (nested) dataclass."""
+
+    def plain(v):
+        if dataclasses.is_dataclass(v):
+            return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v) if f.init}
+        if isinstance(v, tuple | list):
+            return [plain(x) for x in v]
+        return v
+
+    return plain(obj)
+
+
+def load_yaml_file(cls, path: Path):
+    return from_dict(cls, read_yaml(path, "configuration") or {}, str(path))

@@ -1,0 +1,61 @@
+"""How much of the object the views saw, estimated without truth.
+
+An untrimmed Poisson surface of the fused cloud is closed: where no view saw the object it
+bridges the gap with a smooth patch of about the missing area. The coverage estimate is the
+share of that closed surface which some view of the scan (both its cameras, at the estimated
+pose) sees, facing it and unoccluded: the same test the simulator's `observed_fraction` applies
+to the true surface and the true camera centres, here on what the software itself knows.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from reconstruction.evaluation.metrics import TriangleSurface, sample_surface, visible_mask
+from reconstruction.surfaces.meshes import FusedCloud
+from reconstruction.surfaces.topology import triangle_components
+
+
+def closed_surface(fused: FusedCloud, poisson_depth: int = 7) -> TriangleSurface:
+    """The Poisson surface through the fused cloud, untrimmed: closed over unseen parts."""
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(fused.points_W))
+    cloud.normals = o3d.utility.Vector3dVector(fused.normals_W)
+    # A box twice the data's size, so that the surface closes inside it rather than ending
+    # at the box's faces over an unseen side.
+    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+        cloud, depth=poisson_depth, scale=2.0, n_threads=1
+    )
+    # Poisson may add detached blobs far from the data; the object is the largest component.
+    clusters, counts = triangle_components(np.asarray(mesh.triangles))
+    mesh.remove_triangles_by_mask(clusters != int(np.argmax(counts)))
+    mesh.remove_unreferenced_vertices()
+    return TriangleSurface(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """The share of the closed surface the cameras saw, and the area they did not (m^2)."""
+
+    fraction: float
+    unseen_area_m2: float
+
+
+def coverage_estimate(
+    fused: FusedCloud, camera_centres_W: Sequence[np.ndarray], samples: int = 50_000
+) -> Coverage:
+    """How much of the closed surface through the data the views saw (`camera_centres_W`: per
+    view a camera centre (3,) or its stereo eye centres (2, 3), as `visible_mask` takes them)."""
+    if len(fused) < 100 or not len(camera_centres_W):
+        return Coverage(0.0, math.nan)
+    surface = closed_surface(fused)
+    seen = visible_mask(sample_surface(surface, samples), surface, camera_centres_W)
+    v, t = surface.vertices, surface.triangles
+    area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
+    fraction = float(seen.mean())
+    return Coverage(fraction, float(area.sum()) * (1.0 - fraction))

@@ -1,0 +1,1 @@
+"""The interfaces a robot and a camera implement (the simulator and real hardware alike)."""

@@ -1,0 +1,119 @@
+"""The two small interfaces a robot and a stereo camera implement: the simulator and real drivers.
+
+A real-hardware port implements `RobotDriver` (e.g. over the Staubli controller's socket
+interface) and `StereoCameraDriver` (e.g. a FlyCapture/Spinnaker grabber); nothing else in the
+product needs to change.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class JointTrajectory:
+    """A time-parameterised joint path sampled densely enough to be executed by interpolation.
+
+    times_s: (K,) strictly increasing from 0; positions_rad: (K, 6).
+    """
+
+    times_s: np.ndarray
+    positions_rad: np.ndarray
+
+    def __post_init__(self) -> None:
+        t, q = np.asarray(self.times_s, float), np.asarray(self.positions_rad, float)
+        if t.ndim != 1 or q.ndim != 2 or len(t) != len(q) or len(t) < 2:
+            raise ValueError("JointTrajectory: times (K,) and positions (K, n) with K >= 2")
+        if np.any(np.diff(t) <= 0) or t[0] != 0:
+            raise ValueError("JointTrajectory: times must start at 0 and strictly increase")
+        t.setflags(write=False)
+        q.setflags(write=False)
+        object.__setattr__(self, "times_s", t)
+        object.__setattr__(self, "positions_rad", q)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.times_s[-1])
+
+
+@dataclass(frozen=True, eq=False)
+class StereoImages:
+    """One synchronised stereo pair: RGB uint8 images (H, W, 3) and the capture time stamp."""
+
+    left: np.ndarray
+    right: np.ndarray
+    stamp_s: float
+
+
+class RobotDriver(abc.ABC):
+    """A 6-axis arm: report measured joints, execute a (validated) trajectory until at rest."""
+
+    @abc.abstractmethod
+    def joint_positions(self) -> np.ndarray:
+        """Measured joint positions (rad), shape (6,)."""
+
+    @abc.abstractmethod
+    def execute(self, trajectory: JointTrajectory) -> None:
+        """Follow the trajectory and return once the arm has settled at its last sample."""
+
+
+class StereoCameraDriver(abc.ABC):
+    """A stereo camera on the flange: capture one synchronised pair."""
+
+    @abc.abstractmethod
+    def capture(self) -> StereoImages:
+        """Grab a pair; raise CaptureError when the hardware could not deliver one."""
+
+
+class CaptureError(RuntimeError):
+    """The camera failed to deliver an image pair (the decision maker retries)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Hardware:
+    """A real (or any other) robot + stereo camera pair that a scan runs on instead of the
+    simulator; a driver module's factory returns one."""
+
+    robot: RobotDriver
+    camera: StereoCameraDriver
+    # Multi-hanging scans: ask the operator to re-hang the object (the message says which
+    # hanging and how) and return once it hangs still; None: this cell cannot re-hang.
+    request_rehang: Callable[[str], None] | None = None
+
+
+def load_hardware(spec: str, config: object) -> Hardware:
+    """`package.module:factory` -> factory(config) -> Hardware, e.g. `my_cell.rx60:connect`.
+
+    The factory gets the command's whole configuration (a ScanConfig or a CalibrateConfig:
+    cell, camera, ...) and connects to the hardware; every failure to find or call it is a user
+    error naming `spec`.
+    """
+    import importlib
+
+    from reconstruction.common.errors import ScannerError
+
+    module_name, _, attribute = spec.partition(":")
+    if not module_name or not attribute:
+        raise ScannerError(f"driver: expected 'package.module:factory', got '{spec}'")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as e:
+        raise ScannerError(f"driver: cannot import '{module_name}' ({e})") from None
+    factory = getattr(module, attribute, None)
+    if not callable(factory):
+        raise ScannerError(f"driver: '{module_name}' has no callable '{attribute}'")
+    hardware = factory(config)
+    if not (
+        isinstance(hardware, Hardware)
+        and isinstance(hardware.robot, RobotDriver)
+        and isinstance(hardware.camera, StereoCameraDriver)
+    ):
+        raise ScannerError(
+            f"driver: {spec} returned {type(hardware).__name__}; expected robots.drivers.interfaces.Hardware"
+            " holding a RobotDriver and a StereoCameraDriver"
+        )
+    return hardware

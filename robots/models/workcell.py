@@ -1,0 +1,318 @@
+"""The work cell as data (WorkcellConfig) and its Drake model (MultibodyPlant + SceneGraph).
+
+World frame W = robot base frame (base mounting face, +z up). The RX60 stands on a table whose
+top is the plane z = 0; a safety fence stands behind the robot and a radiator beside it (SDU
+report, section 4.1); the object hangs from a thin rod above and in front of the robot because
+the RX60's reach is limited.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pydrake.geometry import (
+    Box,
+    CollisionFilterDeclaration,
+    Cylinder,
+    GeometryInstance,
+    GeometrySet,
+    IllustrationProperties,
+    MakeRenderEngineVtk,
+    Mesh,
+    PerceptionProperties,
+    RenderEngineVtkParams,
+    RenderLabel,
+    Sphere,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import FixedOffsetFrame, SpatialInertia
+from pydrake.planning import RobotDiagram, RobotDiagramBuilder
+
+from reconstruction.common.errors import ScannerError
+from robots.models import camera_tool
+from robots.models.rx60 import FLANGE_FRAME, RX60, rx60_urdf
+
+RENDERER_NAME = "vtk"
+OBJECT_BODY = "object"
+
+
+@dataclass(frozen=True)
+class CellBox:
+    """A static box in the cell: centre p_WB (m), full size (m), colour."""
+
+    name: str
+    p_WB: tuple[float, float, float]
+    size: tuple[float, float, float]
+    rgba: tuple[float, float, float, float] = (0.6, 0.6, 0.6, 1.0)
+
+
+DEFAULT_CELL_BOXES: tuple[CellBox, ...] = (
+    CellBox("table", (0.15, 0.0, -0.025), (1.3, 1.1, 0.05), (0.45, 0.35, 0.25, 1.0)),
+    CellBox("fence", (-0.75, 0.0, 0.85), (0.02, 1.8, 1.8), (0.85, 0.8, 0.1, 1.0)),
+    CellBox("radiator", (0.25, -0.75, 0.35), (0.7, 0.1, 0.6), (0.9, 0.9, 0.9, 1.0)),
+)
+
+
+@dataclass(frozen=True)
+class WorkcellConfig:
+    """Where things are. Positions in the world (robot base) frame, metres."""
+
+    # Measured: of the centres tried, here the most of a 0.5 m viewing sphere is reachable
+    # collision-free (12 %, a cap below the object, elevations -82..-13 deg).
+    object_center_m: tuple[float, float, float] = (0.40, 0.0, 1.00)
+    object_size_m: float = 0.2
+    object_yaw_rad: float = 0.0
+    rod_radius_m: float = 0.004
+    rod_top_z_m: float = 1.8
+    boxes: tuple[CellBox, ...] = field(default=DEFAULT_CELL_BOXES)
+
+    def __post_init__(self) -> None:
+        c = self.object_center_m
+        if len(c) != 3 or not all(math.isfinite(v) for v in c):
+            raise ScannerError(f"object_center_m: expected three finite numbers, got {c}")
+        # The rod, the camera's depth window and the arm's reach are sized for objects of
+        # a few centimetres to half a metre.
+        if not (math.isfinite(self.object_size_m) and 0 < self.object_size_m <= 1.0):
+            raise ScannerError(
+                f"object_size_m: expected a size in metres in (0, 1], got {self.object_size_m}"
+            )
+        if self.rod_top_z_m <= c[2]:
+            raise ScannerError("rod_top_z_m: must be above the object centre")
+
+    @property
+    def X_WO(self) -> np.ndarray:
+        """Pose of the object frame O in the world."""
+        X = np.eye(4)
+        cz, sz = math.cos(self.object_yaw_rad), math.sin(self.object_yaw_rad)
+        X[:3, :3] = [[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]]
+        X[:3, 3] = self.object_center_m
+        return X
+
+
+@dataclass
+class Workcell:
+    """A built cell: the RobotDiagram and the handles every consumer needs."""
+
+    diagram: RobotDiagram
+    robot: object  # ModelInstanceIndex of the RX60
+    config: WorkcellConfig
+    has_renderer: bool
+    has_object: bool = True
+
+    @property
+    def plant(self) -> MultibodyPlant:
+        return self.diagram.plant()
+
+    @property
+    def scene_graph(self):
+        return self.diagram.scene_graph()
+
+    def object_label(self) -> int:
+        """Render label of the object (Drake labels perception geometry by body index)."""
+        return int(self.plant.GetBodyByName(OBJECT_BODY).index())
+
+
+def add_rx60(plant: MultibodyPlant, robot: RX60):
+    (instance,) = Parser(plant).AddModelsFromString(rx60_urdf(robot), "urdf")
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("base_link", instance))
+    return instance
+
+
+def add_camera_frames(plant: MultibodyPlant, instance, X_FC: np.ndarray, X_CR: np.ndarray):
+    """Left (C) and right (R) optical frames fixed to the flange at the given hand-eye pose."""
+    flange = plant.GetFrameByName(FLANGE_FRAME, instance)
+    left = plant.AddFrame(FixedOffsetFrame("camera_left", flange, RigidTransform(X_FC)))
+    plant.AddFrame(FixedOffsetFrame("camera_right", left, RigidTransform(X_CR)))
+
+
+def _add_tool_geometry(plant: MultibodyPlant, instance) -> None:
+    body = plant.GetFrameByName(FLANGE_FRAME, instance).body()
+    X_BF = plant.GetFrameByName(FLANGE_FRAME, instance).GetFixedPoseInBodyFrame()
+    for i, box in enumerate(camera_tool.tool_visual_boxes()):
+        plant.RegisterVisualGeometry(
+            body,
+            X_BF @ RigidTransform(box.p_FB),
+            Box(*box.size),
+            f"camera_tool_visual_{i}",
+            np.array([0.15, 0.15, 0.18, 1.0]),
+        )
+    c = camera_tool.tool_collision_box()
+    plant.RegisterCollisionGeometry(
+        body,
+        X_BF @ RigidTransform(c.p_FB),
+        Box(*c.size),
+        "camera_tool_collision",
+        _friction(),
+    )
+
+
+def _filter_wrist_tool(plant: MultibodyPlant, scene_graph, instance) -> None:
+    """Exclude the wrist sphere (link5) vs the camera tool from collision checks.
+
+    The sphere is centred on the J6 axis, so its distance to anything on the flange never changes
+    with q: it is a constant 6 mm, which any planning padding >= 6 mm would turn into a permanent
+    false self-collision. Parent/child pairs are already filtered by the plant; this pair is two
+    joints apart.
+    """
+    wrist = plant.GetBodyByName("link5", instance)
+    tool = plant.GetFrameByName(FLANGE_FRAME, instance).body()
+    pair = GeometrySet(
+        plant.GetCollisionGeometriesForBody(wrist) + plant.GetCollisionGeometriesForBody(tool)
+    )
+    scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeWithin(pair))
+
+
+def _friction():
+    from pydrake.multibody.plant import CoulombFriction
+
+    return CoulombFriction(0.5, 0.5)
+
+
+def _add_cell(plant: MultibodyPlant, config: WorkcellConfig) -> None:
+    world = plant.world_body()
+    for box in config.boxes:
+        X = RigidTransform(np.array(box.p_WB))
+        plant.RegisterVisualGeometry(world, X, Box(*box.size), box.name, np.array(box.rgba))
+        plant.RegisterCollisionGeometry(world, X, Box(*box.size), box.name, _friction())
+
+
+@dataclass(frozen=True)
+class PlacedObject:
+    """The object's textured OBJ (in its frame O) and the point p_OA where its rod is attached."""
+
+    obj_path: Path
+    p_OA: tuple[float, float, float]
+
+
+def placed_object(
+    obj_path: Path,
+    vertices_O: np.ndarray,
+    triangles: np.ndarray,
+    R_WO: np.ndarray | None = None,
+) -> PlacedObject:
+    """The rod hangs straight down the vertical through the object's centre and is attached
+    where that line first meets the surface, so the software knows where the rod is (the
+    vertical above the scan centre) without knowing the object. An object the line misses
+    hangs from its vertex nearest to that line among the top 1 % of heights. `R_WO`: the
+    object's orientation in the cell (a re-hung object hangs from its new top)."""
+    import open3d as o3d
+
+    R_WO = np.eye(3) if R_WO is None else np.asarray(R_WO, float)
+    up_O = R_WO.T @ np.array([0.0, 0.0, 1.0])
+    heights = vertices_O @ up_O
+    top = float(heights.max())
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(vertices_O.astype(np.float32), triangles.astype(np.uint32))
+    start = (top + 1.0) * up_O
+    ray = np.array([[*start, *(-up_O)]], np.float32)
+    hit = float(scene.cast_rays(o3d.core.Tensor(ray))["t_hit"].numpy()[0])
+    if np.isfinite(hit):
+        return PlacedObject(Path(obj_path), tuple(float(v) for v in start - hit * up_O))
+    high = vertices_O[heights >= top - 0.01 * float(np.ptp(heights))]
+    off_axis = high - np.outer(high @ up_O, up_O)
+    p = high[int(np.argmin(np.linalg.norm(off_axis, axis=1)))]
+    return PlacedObject(Path(obj_path), tuple(float(v) for v in p))
+
+
+def textured_instance(mesh: Mesh, name: str, label: int) -> GeometryInstance:
+    """A visual geometry that keeps its OBJ material (no diffuse override) and a render label."""
+    instance = GeometryInstance(RigidTransform(), mesh, name)
+    instance.set_illustration_properties(IllustrationProperties())
+    perception = PerceptionProperties()
+    perception.AddProperty("label", "id", RenderLabel(label))
+    instance.set_perception_properties(perception)
+    return instance
+
+
+def keep_out_radius_m(config: WorkcellConfig) -> float:
+    """Radius of the sphere that surely holds an object whose largest extent is object_size_m."""
+    return config.object_size_m * math.sqrt(3) / 2
+
+
+def _add_object(
+    plant: MultibodyPlant, config: WorkcellConfig, obj: PlacedObject | None, X_WO: np.ndarray
+) -> None:
+    """The object (a welded body, so it has its own render label) and the rod it hangs from.
+
+    Without a mesh (the planner's view: the object is unknown) the object is a collision-only
+    keep-out sphere around the scan centre and the rod hangs down to the sphere's top.
+    """
+    instance = plant.AddModelInstance("object")
+    body = plant.AddRigidBody(OBJECT_BODY, instance, SpatialInertia.SolidSphereWithMass(0.5, 0.05))
+    X_WO = RigidTransform(X_WO)
+    plant.WeldFrames(plant.world_frame(), body.body_frame(), X_WO)
+    p_OA = np.zeros(3)
+    if obj is not None:
+        p_OA = np.array(obj.p_OA)
+        mesh = Mesh(str(obj.obj_path))
+        plant.RegisterVisualGeometry(
+            body, textured_instance(mesh, "object_visual", int(body.index()))
+        )
+        plant.RegisterCollisionGeometry(
+            body, RigidTransform(), mesh, "object_collision", _friction()
+        )
+    else:
+        radius = keep_out_radius_m(config)
+        p_OA = np.array([0.0, 0.0, radius])
+        plant.RegisterCollisionGeometry(
+            body, RigidTransform(), Sphere(radius), "object_keep_out", _friction()
+        )
+    p_WA = X_WO @ p_OA
+    length = config.rod_top_z_m - p_WA[2]
+    # The rod is vertical in W; O may be yawed, so express the rod's pose through W.
+    X_WR = RigidTransform(np.array([p_WA[0], p_WA[1], p_WA[2] + length / 2]))
+    X_OR = X_WO.inverse() @ X_WR
+    rod = Cylinder(config.rod_radius_m, length)
+    plant.RegisterVisualGeometry(body, X_OR, rod, "rod", np.array([0.7, 0.7, 0.72, 1.0]))
+    plant.RegisterCollisionGeometry(body, X_OR, rod, "rod", _friction())
+
+
+def build_workcell(
+    config: WorkcellConfig,
+    obj: PlacedObject | None,
+    X_FC: np.ndarray,
+    X_CR: np.ndarray,
+    robot: RX60 = RX60(),
+    renderer: bool = False,
+    meshcat=None,
+    extras: Sequence[Callable[[MultibodyPlant, object], None]] = (),
+    include_object: bool = True,
+    X_WO: np.ndarray | None = None,
+) -> Workcell:
+    """Robot, camera tool (frames at the given X_FC), cell boxes and object in one RobotDiagram.
+
+    `obj` is the true textured object (simulator); None gives the planner's view, a keep-out
+    sphere of the configured object size around the scan centre. `meshcat` (a pydrake Meshcat)
+    adds a live visualiser, published by `ForcedPublish` on the diagram. `extras` add more
+    things before the plant is finalised, each called as extra(plant, robot_instance) (e.g. a
+    calibration board, a marker on the flange); `include_object=False` leaves the object, its
+    keep-out sphere and its rod out of the cell (calibration needs a clear view of the board).
+    `X_WO`: the object's pose (default the configuration's; a re-hung object differs).
+    """
+    builder = RobotDiagramBuilder(time_step=0.0)
+    plant = builder.plant()
+    if renderer:
+        builder.scene_graph().AddRenderer(
+            RENDERER_NAME, MakeRenderEngineVtk(RenderEngineVtkParams())
+        )
+    instance = add_rx60(plant, robot)
+    _add_tool_geometry(plant, instance)
+    add_camera_frames(plant, instance, X_FC, X_CR)
+    _add_cell(plant, config)
+    if include_object:
+        _add_object(plant, config, obj, config.X_WO if X_WO is None else X_WO)
+    for extra in extras:
+        extra(plant, instance)
+    plant.Finalize()
+    _filter_wrist_tool(plant, builder.scene_graph(), instance)
+    if meshcat is not None:
+        from pydrake.geometry import MeshcatVisualizer
+
+        MeshcatVisualizer.AddToBuilder(builder.builder(), builder.scene_graph(), meshcat)
+    return Workcell(builder.Build(), instance, config, renderer, include_object)

@@ -1,0 +1,108 @@
+"""One simulated world: true work cell with renderer, truth, robot and stereo camera."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from reconstruction.stereo.camera_model import StereoCamera, default_stereo_camera
+from robots.models import camera_tool
+from robots.models.objects import ObjectMesh, mesh_fingerprint, resolve_object, write_textured_obj
+from robots.models.rx60 import RX60
+from robots.models.workcell import Workcell, WorkcellConfig, build_workcell, placed_object
+from robots.simulation.operator import hung_pose
+from robots.simulation.robot import SimulatedRobot
+from robots.simulation.stereo_camera import SimulatedStereoCamera
+from robots.simulation.truth import ErrorModel, Truth, sample_truth
+
+# Folded: elbow up, camera looking forward and down at the table, well below the object.
+HOME_Q = np.array([0.0, -0.4, 2.3, 0.0, 0.8, 0.0])
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("SCANNER_CACHE", Path.home() / ".cache" / "scanner"))
+
+
+def textured_object(mesh: ObjectMesh, texture_seed: int = 0) -> Path:
+    """The object's textured OBJ in the cache (content-addressed, written once)."""
+    directory = cache_dir() / "objects" / f"{mesh.name}-{mesh_fingerprint(mesh, texture_seed)}"
+    return write_textured_obj(mesh, directory, texture_seed)
+
+
+def object_vertices_W(mesh: ObjectMesh, X_WO: np.ndarray) -> np.ndarray:
+    return mesh.vertices @ X_WO[:3, :3].T + X_WO[:3, 3]
+
+
+@dataclass
+class Simulation:
+    workcell: Workcell
+    truth: Truth
+    robot: SimulatedRobot
+    camera: SimulatedStereoCamera
+    object_mesh: ObjectMesh | None
+
+
+def create_simulation(
+    cell: WorkcellConfig,
+    object_spec: str | None,
+    error_model: ErrorModel = ErrorModel(),
+    stereo: StereoCamera | None = None,
+    X_FC_nominal: np.ndarray | None = None,
+    robot: RX60 = RX60(),
+    q0: np.ndarray = HOME_Q,
+    meshcat=None,
+    extras: Sequence[Callable] = (),
+    hanging: int = 0,
+) -> Simulation:
+    """Build the true world for `object_spec` (built-in name or mesh path) and its error model.
+
+    `object_spec=None` builds the cell without an object (calibration); `extras` are passed to
+    `build_workcell` (e.g. a calibration board).
+    """
+    stereo = stereo or default_stereo_camera()
+    if X_FC_nominal is None:
+        X_FC_nominal = camera_tool.nominal_X_FC(stereo.baseline_m)
+    mesh = None if object_spec is None else resolve_object(object_spec, cell.object_size_m)
+    X_WO = hung_pose(cell.X_WO, error_model.seed, hanging)
+    truth = sample_truth(error_model, X_FC_nominal, stereo, X_WO)
+    sim_robot = SimulatedRobot(robot, truth.joint_offsets_rad, q0)
+    return _assemble(cell, mesh, truth, sim_robot, meshcat, extras)
+
+
+def _assemble(
+    cell: WorkcellConfig,
+    mesh: ObjectMesh | None,
+    truth: Truth,
+    sim_robot: SimulatedRobot,
+    meshcat=None,
+    extras: Sequence[Callable] = (),
+) -> Simulation:
+    obj = None
+    if mesh is not None:
+        obj_path = textured_object(mesh, truth.seed)
+        obj = placed_object(obj_path, mesh.vertices, mesh.triangles, truth.X_WO[:3, :3])
+    workcell = build_workcell(
+        cell,
+        obj,
+        truth.X_FC,
+        truth.stereo.X_CR,
+        sim_robot.robot,
+        renderer=True,
+        meshcat=meshcat,
+        extras=extras,
+        include_object=mesh is not None,
+        X_WO=truth.X_WO,
+    )
+    camera = SimulatedStereoCamera(workcell, truth, sim_robot.true_joint_positions)
+    return Simulation(workcell, truth, sim_robot, camera, mesh)
+
+
+def rehang(sim: Simulation, hanging: int, meshcat=None) -> Simulation:
+    """The same cell, robot (where it stands) and errors with the object hung anew."""
+    cell = sim.workcell.config
+    X_WO = hung_pose(cell.X_WO, sim.truth.seed, hanging)
+    return _assemble(cell, sim.object_mesh, replace(sim.truth, X_WO=X_WO), sim.robot, meshcat)

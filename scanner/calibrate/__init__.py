@@ -1,0 +1,2 @@
+"""`scanner calibrate`: the stereo pair and the hand-eye transform, live, offline or eye-to-hand;
+its reports, and the calibration file to and from OpenCV and ROS (`scanner export`, `import-calibration`)."""

@@ -1,0 +1,1 @@
+"""`scanner inspect`: a measured model against its CAD reference, with a pass/fail verdict."""

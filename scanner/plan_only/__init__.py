@@ -1,0 +1,1 @@
+"""`scanner scan --plan-only`: the views, tour and motions planned as a scan would, nothing moved."""

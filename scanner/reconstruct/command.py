@@ -1,0 +1,132 @@
+"""`scanner reconstruct`'s work for one scan directory, given the command's options: shared by
+the single run and the batch (one Ray task per scan)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from scanner.reconstruct.stages import ReconstructRun
+
+
+@dataclass(frozen=True)
+class ReconstructOptions:
+    """The flags of `scanner reconstruct`, applied to every scan given."""
+
+    config: Path | None = None
+    calibration: Path | None = None
+    no_icp: bool = False
+    no_handeye: bool = False
+    formats: str | None = None
+    out: Path | None = None
+    force: bool = False
+    progress: bool = False
+    units: str | None = None  # --units, --frame, --decimate: processing.mesh_export
+    frame: str | None = None
+    decimate: int | None = None
+
+
+def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructRun:
+    """The scan's own settings unless --config; results in a free SCAN_DIR/results[-N] unless
+    --out (which must not hold a reconstruction, unless --force)."""
+    from reconstruction.calibration.file import load_calibration
+    from scanner.reconstruct.results_folder import require_replaceable
+    from scanner.reconstruct.stages import (
+        RECONSTRUCTION_MARKER,
+        free_reconstruction_dir,
+        load_processing_config,
+        run_reconstruct,
+    )
+    from scanner.scan.manifest import open_scan
+
+    scan = open_scan(scan_dir)
+    if options.config is not None:
+        processing = load_processing_config(options.config)
+    else:
+        processing = scan.config.processing
+    rec = processing.reconstruction
+    if options.no_icp:
+        rec = replace(rec, icp=replace(rec.icp, enabled=False))
+    if options.no_handeye:
+        rec = replace(rec, handeye=replace(rec.handeye, enabled=False))
+    formats = processing.mesh_formats
+    if options.formats:
+        formats = tuple("." + f.strip().lstrip(".").lower() for f in options.formats.split(","))
+    processing = replace(
+        processing,
+        reconstruction=rec,
+        mesh_formats=formats,
+        mesh_export=_mesh_export(processing.mesh_export, options),
+    )
+    stereo = X_FC = None
+    if options.calibration is not None:
+        calibration = load_calibration(options.calibration)
+        stereo, X_FC = calibration.stereo, calibration.X_FC
+    out = options.out or free_reconstruction_dir(scan_dir)
+    if options.out is not None:
+        require_replaceable(options.out, RECONSTRUCTION_MARKER, options.force, "reconstruction")
+    origin = {}
+    if options.config is not None:
+        origin["processing_from"] = f"--config {options.config}"
+    if options.calibration is not None:
+        origin["X_FC_given"] = f"from --calibration {options.calibration}"
+    return run_reconstruct(
+        scan, processing, out, X_FC, stereo, progress=options.progress, origin=origin
+    )
+
+
+def _mesh_export(export, options: ReconstructOptions):
+    """processing.mesh_export with --units, --frame and --decimate applied (an error names the
+    flag)."""
+    from scanner.cli.arguments import for_flag
+
+    for flag, key, value in (
+        ("--units", "units", options.units),
+        ("--frame", "frame", options.frame),
+        ("--decimate", "decimate_triangles", options.decimate),
+    ):
+        if value is not None:
+            export = for_flag(flag, lambda: replace(export, **{key: value}))  # noqa: B023
+    return export
+
+
+def summary_lines(report: dict) -> list[str]:
+    """What the command prints about one finished reconstruction: the run, then (with truth)
+    the headline figures with their verdicts."""
+    r = report
+    lines = [
+        f"reconstruct: {r['captures_used']} captures used, {len(r['captures_skipped'])} "
+        f"skipped, {r['reconstruct_s']:.1f} s"
+    ]
+    line = metrics_line(r)
+    if line:
+        lines.append(line)
+    return lines
+
+
+def metrics_line(report: dict) -> str | None:
+    """The headline figures against the truth, each with its verdict (None without truth)."""
+    from scanner.reports.judgement import FIGURES
+
+    r = report
+    if "chamfer_mm" not in r:
+        return None
+
+    def judged(key: str, text: str) -> str:
+        return f"{text} ({FIGURES[key].verdict(r[key])})"
+
+    parts = []
+    if "chamfer_observed_mm" in r:
+        parts.append(
+            judged("chamfer_observed_mm", f"Chamfer {r['chamfer_observed_mm']:.3f} mm observed")
+        )
+        parts.append(judged("observed_fraction", f"{r['observed_fraction']:.0%} of it seen"))
+    parts.append(f"whole object {r['chamfer_mm']:.3f} mm, F-score(1 mm) {r['fscore_1mm']:.3f}")
+    if "handeye_error_mm" in r:
+        parts.append(
+            judged(
+                "handeye_error_mm",
+                f"hand-eye error {r['handeye_error_mm']:.3f} mm / {r['handeye_error_deg']:.4f} deg",
+            )
+        )
+    return f"{r['primary_surface']}: " + "; ".join(parts)

@@ -1,0 +1,48 @@
+"""`scanner merge SCAN_DIR... --out DIR`: one model from several scans of one object (each of
+one or more hangings), aligned into the first scan's first hanging and verified."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from reconstruction.common.errors import ScannerError
+from reconstruction.stereo.camera_model import stereo_camera_to_dict
+from scanner.reconstruct.results_folder import require_replaceable
+from scanner.reconstruct.stages import (
+    RECONSTRUCTION_MARKER,
+    ReconstructRun,
+    load_processing_config,
+    reconstruct_scans,
+)
+from scanner.scan.manifest import open_scan
+
+
+def run_merge(
+    scan_dirs: list[Path],
+    out: Path,
+    config: Path | None = None,
+    force: bool = False,
+    progress: bool = False,
+) -> ReconstructRun:
+    """Checks the scans belong together (distinct scans, one camera model), then reconstructs
+    them as one; a merge whose alignment fails verification raises RefusedResultError."""
+    if len(scan_dirs) < 2:
+        raise ScannerError(
+            f"merge needs two or more scan directories, got {' '.join(map(str, scan_dirs))} "
+            "(a multi-hanging scan is merged by its own reconstruction: scanner reconstruct)"
+        )
+    resolved = [Path(d).resolve() for d in scan_dirs]
+    twice = sorted({str(d) for d in resolved if resolved.count(d) > 1})
+    if twice:
+        raise ScannerError(f"{', '.join(twice)}: given more than once; merge distinct scans")
+    scans = [open_scan(d) for d in scan_dirs]
+    first = stereo_camera_to_dict(scans[0].stereo)
+    for scan in scans[1:]:
+        if stereo_camera_to_dict(scan.stereo) != first:
+            raise ScannerError(
+                f"{scan.root}: made with another camera model than {scans[0].root}; merged "
+                "scans share one camera and one hand-eye transform"
+            )
+    require_replaceable(out, RECONSTRUCTION_MARKER, force, "reconstruction")
+    processing = None if config is None else load_processing_config(config)
+    return reconstruct_scans(scans, Path(out), processing, progress=progress)

@@ -1,0 +1,211 @@
+"""The views of saved scans, ready for the reconstruction: stereo clouds of the captures (one
+scan or several, with indices made unique), the point filter of each scan's cell, the truth
+files when the simulator wrote them, and a quick model of some captures to plan views on."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from reconstruction.common.errors import ScannerError
+from reconstruction.evaluation.metrics import TriangleSurface
+from reconstruction.pipeline import VIEW_THREADS, ReconstructionConfig, filter_views
+from reconstruction.registration.views import ViewCloud
+from reconstruction.stereo.camera_model import StereoCamera
+from reconstruction.stereo.cloud import depth_image, view_cloud
+from reconstruction.stereo.params import StereoParams
+from reconstruction.stereo.rectification import Rectification, compute_rectification
+from reconstruction.surfaces.meshes import FusedCloud, fuse_clouds
+from robots.models.workcell import keep_out_radius_m
+from scanner.scan.captures import Capture
+from scanner.scan.config import ProcessingConfig, ScanConfig
+from scanner.scan.manifest import SavedScan
+
+log = logging.getLogger("scanner.reconstruct.stages")
+
+
+@dataclass(frozen=True, eq=False)
+class CaptureViews:
+    """The stereo stage's output: a view per readable capture, the captures skipped (index and
+    reason), and the measured joint positions of each view (for the robot/cell point filter)."""
+
+    views: list[ViewCloud]
+    skipped: list[dict]
+    joints: dict[int, np.ndarray]
+
+
+def capture_views(
+    scan: SavedScan,
+    rect: Rectification,
+    X_FC: np.ndarray,
+    params: StereoParams,
+    indices: Sequence[int] | None = None,
+    ready: Mapping[int, tuple[ViewCloud, np.ndarray]] | None = None,
+    on_view: Callable[[], None] | None = None,
+) -> CaptureViews:
+    """Stereo clouds of every readable capture (or of those among `indices`); damaged
+    captures are reported and skipped. `ready`: (view, joints) of captures already done by
+    the same settings (streamed during the scan). `on_view()` after each capture (progress)."""
+    out = CaptureViews([], [], {})
+    wanted = None if indices is None else set(indices)
+    ready = ready or {}
+    todo = [i for i in scan.store.captured_indices() if wanted is None or i in wanted]
+
+    def one(index: int) -> tuple[ViewCloud, np.ndarray] | ScannerError:
+        if index in ready:
+            return ready[index]
+        try:
+            return stereo_view(scan, index, rect, X_FC, params)
+        except ScannerError as e:
+            return e
+
+    with ThreadPoolExecutor(max_workers=VIEW_THREADS) as pool:
+        for index, done in zip(todo, pool.map(one, todo)):
+            if isinstance(done, ScannerError):
+                log.warning("capture %d skipped: %s", index, done)
+                out.skipped.append({"index": index, "reason": str(done)})
+                continue
+            out.views.append(done[0])
+            out.joints[index] = done[1]
+            if on_view is not None:
+                on_view()
+    return out
+
+
+def stereo_view(
+    scan: SavedScan,
+    index: int,
+    rect: Rectification,
+    X_FC: np.ndarray,
+    params: StereoParams,
+    capture: Capture | None = None,
+) -> tuple[ViewCloud, np.ndarray]:
+    """One capture's stereo cloud and depth map, and its measured joint positions; a damaged
+    or mismatched capture raises ScannerError (its reason). `capture`: the capture as it was
+    just stored (its PNGs are lossless: reading them back gives the same arrays), else read."""
+    if capture is None:
+        capture = scan.store.read_capture(index)
+    if capture.left.shape[1::-1] != rect.image_size:
+        raise ScannerError(
+            f"image size {capture.left.shape[1::-1]} differs from the camera model's"
+        )
+    centre = np.array(scan.config.scan_center_m, float)
+    radius = keep_out_radius_m(scan.config.cell)
+    cloud = view_cloud(
+        rect, capture.left, capture.right, capture.X_WF @ X_FC, centre, radius, params
+    )
+    depth = depth_image(rect, cloud)
+    return ViewCloud(index, cloud.points_C, cloud.colors, capture.X_WF, depth), capture.q_rad
+
+
+def load_truth_of(scan_dir: Path):
+    """(the simulator's Truth record, the true surface in W, the whole truth file), or None
+    without truth.yaml."""
+    path = scan_dir / "truth.yaml"
+    if not path.is_file():
+        return None
+    import open3d as o3d
+
+    from robots.simulation.truth import load_truth
+
+    truth, raw = load_truth(path)
+    mesh = o3d.io.read_triangle_mesh(str(scan_dir / raw.get("mesh", "truth_mesh.ply")))
+    if len(mesh.triangles) == 0:
+        raise ScannerError(f"{scan_dir}: truth mesh missing or empty")
+    surface = TriangleSurface(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
+    return truth, surface, raw
+
+
+def geometry_filter(
+    config: ScanConfig, X_FC: np.ndarray, stereo: StereoCamera, joints: dict, margin_m: float
+):
+    from robots.models.point_filter import make_geometry_filter
+    from robots.models.workcell import build_workcell
+
+    keep = make_geometry_filter(build_workcell(config.cell, None, X_FC, stereo.X_CR), margin_m)
+    return lambda points_W, index: keep(points_W, joints[index])
+
+
+def with_roi_centre(config: ReconstructionConfig, centre: np.ndarray) -> ReconstructionConfig:
+    """The region of interest around the scan centre unless the configuration placed it."""
+    if config.filter.roi.center_m is not None:
+        return config
+    roi = replace(config.filter.roi, center_m=tuple(float(c) for c in centre))
+    return replace(config, filter=replace(config.filter, roi=roi))
+
+
+INDEX_STRIDE = 100_000
+
+
+@dataclass(frozen=True, eq=False)
+class Gathered:
+    """The views of one or more scans, ready for `reconstruct_views`: indices made unique
+    across scans, the passes (hangings) of all of them, and per view its scan."""
+
+    views: list[ViewCloud]
+    skipped: list[dict]
+    joints: dict[int, np.ndarray]
+    hangings: list[list[int]]
+    scan_of: dict[int, int]
+    truths: list  # per scan: (Truth, true surface, truth file) or None
+    remove: object  # remove_points(points_W, index) for all scans
+
+
+def gather_views(
+    scans: list[SavedScan],
+    processing: ProcessingConfig,
+    X_FC: np.ndarray | None = None,
+    stereo: StereoCamera | None = None,
+    ready: Mapping[int, tuple[ViewCloud, np.ndarray]] | None = None,
+    on_view: Callable[[], None] | None = None,
+) -> Gathered:
+    """Stereo clouds of every capture of every scan (each with its own camera model and X_FC
+    unless given), with the point filter of each scan's cell. `ready`: views of the first
+    scan already computed with these settings."""
+    out = Gathered([], [], {}, [], {}, [], None)
+    filters = []
+    for k, scan in enumerate(scans):
+        camera = stereo or scan.stereo
+        X = scan.X_FC_nominal if X_FC is None else X_FC
+        captured = capture_views(
+            scan,
+            compute_rectification(camera),
+            X,
+            processing.stereo,
+            ready=ready if k == 0 else None,
+            on_view=on_view,
+        )
+        offset = k * INDEX_STRIDE
+        out.views.extend(replace(v, index=v.index + offset) for v in captured.views)
+        out.skipped.extend({**d, "index": d["index"] + offset} for d in captured.skipped)
+        out.joints.update({i + offset: q for i, q in captured.joints.items()})
+        out.hangings.extend([i + offset for i in h] for h in scan.hangings)
+        out.scan_of.update({v.index + offset: k for v in captured.views})
+        out.truths.append(load_truth_of(scan.root))
+        filters.append(
+            geometry_filter(scan.config, X, camera, captured.joints, processing.remove_margin_m)
+        )
+    remove = lambda points_W, index: filters[index // INDEX_STRIDE](  # noqa: E731
+        points_W, index % INDEX_STRIDE
+    )
+    return replace(out, remove=remove)
+
+
+def model_so_far(
+    scan: SavedScan, indices: Sequence[int], X_FC: np.ndarray, stereo: StereoCamera
+) -> tuple[FusedCloud, list[np.ndarray]]:
+    """The fused cloud of some captures at their kinematic poses (no registration: a quick
+    model to plan more views on), and their camera centres."""
+    processing = scan.config.processing
+    config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
+    captured = capture_views(scan, compute_rectification(stereo), X_FC, processing.stereo, indices)
+    remove = geometry_filter(scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m)
+    views, clouds, _ = filter_views(captured.views, X_FC, config, remove)
+    X_WC = [v.X_WF @ X_FC for v in views]
+    fused = fuse_clouds(clouds, X_WC, config.surfaces.fused_voxel_size_m)
+    return fused, [X[:3, 3] for X in X_WC]

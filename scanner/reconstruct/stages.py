@@ -1,0 +1,317 @@
+"""`scanner reconstruct SCAN_DIR` (and the end of `scanner scan`): captures -> measured model.
+
+Stages, each timed in the report, reading the scan directory and writing only under the
+results folder (captures are never modified):
+
+    stereo      every capture: rectify, SGBM over the object's depth window, cloud in C
+    reconstruct filter, remove robot/cell points (Drake geometry at the recorded joints),
+                ICP + pose graph, hand-eye correction, fused cloud, Poisson / TSDF meshes
+    evaluate    when truth.yaml is present: surface metrics and hand-eye error vs the truth
+    write       fused_cloud.ply, mesh_*.ply (+ .obj/.stl on request), reconstruction.yaml,
+                plots; then report.json (merged with the scan's) and summary.md
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import logging
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.stage_timer import StageTimer
+from reconstruction.common.typed_yaml import load_yaml_file, to_dict
+from reconstruction.common.yaml_files import yaml_text
+from reconstruction.outputs import export_files, save_outputs, summary
+from reconstruction.pipeline import ReconstructionResult, reconstruct_views
+from reconstruction.stereo.camera_model import StereoCamera
+from reconstruction.surfaces.export import export_record, prepare_exports
+from reconstruction.surfaces.topology import mesh_quality
+from scanner.reconstruct.results_folder import free_results_dir, holds_result, staged_folder
+from scanner.reconstruct.scan_views import gather_views, with_roi_centre
+from scanner.reports.evaluation import (
+    hangings_report,
+    observed_samples,
+    to_first_hanging,
+    truth_metrics,
+)
+from scanner.scan.captures import atomic_write_text
+from scanner.scan.config import ProcessingConfig
+from scanner.scan.manifest import SavedScan, open_scan
+from scanner.scan.view_stream import StreamedViews, settings_key
+
+log = logging.getLogger("scanner.reconstruct.stages")
+
+
+@dataclass(frozen=True, eq=False)
+class ReconstructRun:
+    result: ReconstructionResult
+    report: dict
+    results_dir: Path
+
+
+RECONSTRUCTION_MARKER = "reconstruction.yaml"
+
+
+def holds_reconstruction(results_dir: Path) -> bool:
+    return holds_result(results_dir, RECONSTRUCTION_MARKER)
+
+
+def free_reconstruction_dir(scan_dir: Path) -> Path:
+    """SCAN_DIR/results while it holds no reconstruction, else the first free SCAN_DIR/results-N:
+    an offline run never replaces an earlier one (e.g. the scan's own, or a --no-icp run)."""
+    return free_results_dir(scan_dir, RECONSTRUCTION_MARKER)
+
+
+def _write_pictures(result, processing: ProcessingConfig, truth, out: Path):
+    """The plots and, with the truth, every surface's deviation picture and statistics."""
+    from scanner.reports.plots import write_plots
+
+    return write_plots(
+        result,
+        out,
+        truth[1] if truth else None,
+        processing.deviation_scale_m,
+        processing.deviation_tolerance_m,
+    )
+
+
+def _write_results(
+    result, processing: ProcessingConfig, out: Path, eyes: dict[int, np.ndarray], pictures
+) -> dict:
+    """Meshes, the fused cloud and reconstruction.yaml; their report keys with the pictures'
+    (`_write_pictures`). `eyes`: each view's camera centres at its final pose (kept with the
+    view: what it saw)."""
+    exports = prepare_exports(result.meshes, processing.mesh_export, processing.primary_surface)
+    paths = save_outputs(result, out, processing.mesh_formats, exports)
+    details = summary(result)
+    for view in details["views"]:
+        view["eye_centres_W_m"] = eyes[view["index"]].tolist()
+    atomic_write_text(
+        out / "reconstruction.yaml",
+        yaml_text({"processing": to_dict(processing), **details}),
+    )
+    converged = {}
+    if "handeye" in details:
+        d = details["handeye"]["diagnosis"]
+        converged = {
+            "handeye_converged": d["converged"],
+            "handeye_diagnosis": {
+                "match_fraction": d["match_fraction"],
+                "match_rms_mm": 1e3 * d["match_rms_m"],
+                "axxb_disagreement_mm": 1e3 * d["axxb_disagreement_m"],
+                "axxb_disagreement_deg": math.degrees(d["axxb_disagreement_rad"]),
+                "last_change_mm": 1e3 * d["last_change_m"],
+                "last_change_deg": math.degrees(d["last_change_rad"]),
+                "failures": d["failures"],
+            },
+        }
+    refinement = details.get("handeye", {}).get("refinement")
+    if refinement is not None:
+        converged["handeye_fit"] = {
+            "rms_before_mm": 1e3 * refinement["rms_before_m"],
+            "rms_after_mm": 1e3 * refinement["rms_after_m"],
+        }
+    plots, deviation = pictures
+    return {
+        **converged,
+        "X_FC_estimate": result.X_FC.tolist(),
+        "X_FC_change_mm": 1e3 * details["X_FC_change_translation_m"],
+        "X_FC_change_deg": math.degrees(details["X_FC_change_rotation_rad"]),
+        "outputs": {k: str(p.relative_to(out)) for k, p in paths.items()},
+        "mesh_export": export_record(exports, export_files(exports, processing.mesh_formats)),
+        "plots": plots,
+        **({"deviation": deviation} if deviation else {}),
+    }
+
+
+def _settings(processing: ProcessingConfig, scan: SavedScan, origin: dict[str, str]) -> dict:
+    """The options behind a result, for its summary (`origin`: where X_FC and the processing
+    settings came from when the caller chose them)."""
+    rec = processing.reconstruction
+    calibration = scan.config.calibration_file
+    scan_X_FC = (
+        f"the scan's, from the calibration file {calibration}"
+        if calibration
+        else "the scan's nominal (design) X_FC, no calibration given"
+    )
+    return {
+        "icp": rec.icp.enabled,
+        "handeye_correction": rec.handeye.enabled,
+        "surfaces": list(rec.surfaces.methods),
+        "primary_surface": processing.primary_surface,
+        "mesh_formats": list(processing.mesh_formats),
+        "deviation_scale_mm": 1e3 * processing.deviation_scale_m,
+        "deviation_tolerance_mm": 1e3 * processing.deviation_tolerance_m,
+        "X_FC_given": origin.get("X_FC_given", scan_X_FC),
+        "processing_from": origin.get("processing_from", "the scan's own settings"),
+    }
+
+
+# Capture indices of the k-th scan of a merge are offset by k * INDEX_STRIDE.
+
+
+def run_reconstruct(
+    scan: Path | SavedScan,
+    processing: ProcessingConfig | None = None,
+    results_dir: Path | None = None,
+    X_FC: np.ndarray | None = None,
+    stereo: StereoCamera | None = None,
+    streamed: StreamedViews | None = None,
+    progress: bool = False,
+    origin: dict[str, str] | None = None,
+) -> ReconstructRun:
+    """Reconstruct a saved scan (a directory, or one already opened). Defaults: the scan's own
+    processing settings, camera model and X_FC (from its manifest); results in SCAN_DIR/results.
+    `streamed`: per-view results computed while the scan ran (used where the settings match);
+    `progress`: show the stages on stderr (when it is a terminal); `origin`: where the caller's
+    X_FC and processing came from, for the summary (`X_FC_given`, `processing_from`)."""
+    scan = scan if isinstance(scan, SavedScan) else open_scan(scan)
+    out = Path(results_dir) if results_dir else scan.store.results_dir
+    return reconstruct_scans([scan], out, processing, X_FC, stereo, streamed, progress, origin)
+
+
+def reconstruct_scans(
+    scans: list[SavedScan],
+    out: Path,
+    processing: ProcessingConfig | None = None,
+    X_FC: np.ndarray | None = None,
+    stereo: StereoCamera | None = None,
+    streamed: StreamedViews | None = None,
+    progress: bool = False,
+    origin: dict[str, str] | None = None,
+) -> ReconstructRun:
+    """One model from the captures of one or more scans: every hanging of every scan,
+    aligned into the first one's frame (refused, with nothing written, when an alignment does
+    not verify). Results are written to `out` as a whole, or not at all."""
+    t0 = time.perf_counter()
+    processing = processing or scans[0].config.processing
+    display = _stage_display(scans) if progress else None
+    try:
+        return _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0, origin)
+    finally:
+        if display is not None:
+            display.close()
+
+
+def _stage_display(scans: list[SavedScan]):
+    from scanner.reconstruct.progress import StageProgress
+
+    return StageProgress(sum(len(s.store.captured_indices()) for s in scans))
+
+
+def _reconstruct(
+    scans, out, processing, X_FC, stereo, streamed, display, t0, origin
+) -> ReconstructRun:
+    first = scans[0]
+    config = with_roi_centre(processing.reconstruction, np.array(first.config.scan_center_m))
+    on_stage = display.on_stage if display else None
+    timer = StageTimer(on_stage=on_stage)
+    ready, filtered = _streamed_for(streamed, first, processing, X_FC, stereo)
+
+    with timer("stereo"):
+        views = gather_views(
+            scans, processing, X_FC, stereo, ready, display.on_view if display else None
+        )
+    if len(views.views) < config.min_views:
+        raise ScannerError(
+            f"{first.root}: {len(views.views)} usable captures, the reconstruction needs at "
+            f"least {config.min_views}"
+        )
+    X_FC = first.X_FC_nominal if X_FC is None else X_FC
+    hangings = views.hangings if len(views.hangings) > 1 else None
+    to_first = to_first_hanging(views)
+    with ThreadPoolExecutor(max_workers=1) as beside:
+        # The truth's side of the evaluation (ray casting from every true view) needs no
+        # result: it runs while the views are registered, which leaves a core idle at times.
+        sampling = (
+            beside.submit(observed_samples, views, processing, to_first)
+            if to_first is not None
+            else None
+        )
+        # So is loading the plotting library (3 s), which the pictures at the end would wait for.
+        beside.submit(importlib.import_module, "scanner.reports.plots")
+
+        def eyes_of(index: int, X_WC: np.ndarray) -> np.ndarray:
+            # A view saw what both of its cameras saw.
+            return (stereo or scans[views.scan_of[index]].stereo).eye_centres_W(X_WC)
+
+        with timer("reconstruct"):
+            result = reconstruct_views(
+                views.views, X_FC, config, views.remove, hangings, filtered, on_stage, eyes_of
+            )
+        truth_samples = sampling.result() if sampling is not None else None
+
+    report: dict = {
+        "captures_used": len(views.views),
+        "captures_skipped": views.skipped,
+        "settings": _settings(processing, first, origin or {}),
+    }
+    truth = views.truths[0]
+    earlier = _earlier_report(out)
+    with staged_folder(out) as staging, ThreadPoolExecutor(max_workers=1) as beside:
+        # The pictures need only the result and the truth: they are drawn (Drake's renderer,
+        # matplotlib) while the model is measured (Open3D, numpy), on the other core.
+        pictures = beside.submit(_write_pictures, result, processing, truth, staging)
+        eyes = {v.index: eyes_of(v.index, v.X_WC) for v in result.views}
+        report["coverage_estimate"] = result.coverage.fraction
+        report["unseen_area_m2"] = result.coverage.unseen_area_m2
+        closed = result.meshes.get("poisson_closed")
+        if closed is not None:
+            report["closed_model"] = {
+                "watertight": mesh_quality(closed).watertight,
+                "filled_area_m2": closed.filled_area_m2,
+            }
+        if to_first is not None:
+            with timer("evaluate"):
+                report.update(truth_metrics(result, views, processing, to_first, truth_samples))
+        if hangings:
+            with timer("hangings"):
+                report.update(hangings_report(result, views, to_first))
+        with timer("write"):
+            report.update(_write_results(result, processing, staging, eyes, pictures.result()))
+        report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
+        report["reconstruct_s"] = time.perf_counter() - t0
+        merged = {**earlier, **report}
+        _write_report(staging, merged)
+    return ReconstructRun(result, merged, out)
+
+
+def _streamed_for(streamed, scan: SavedScan, processing, X_FC, stereo) -> tuple[dict, dict]:
+    """The streamed views and filtered clouds of `scan` when they were made with the settings
+    of this run, else nothing (they are then computed again)."""
+    if streamed is None:
+        return {}, {}
+    X = scan.X_FC_nominal if X_FC is None else X_FC
+    if streamed.key != settings_key(scan, processing, X, stereo or scan.stereo):
+        log.info("per-view results of the scan were made with other settings: recomputed")
+        return {}, {}
+    ready = {i: (v.view, v.q_rad) for i, v in streamed.views.items()}
+    filtered = {i: v.cloud for i, v in streamed.views.items() if v.cloud is not None}
+    return ready, filtered
+
+
+def _earlier_report(out: Path) -> dict:
+    """The scan's own report when `out` holds one but no reconstruction (the end of a scan);
+    a reconstruction's report is replaced as a whole (the caller allowed it)."""
+    path = out / "report.json"
+    if holds_reconstruction(out) or not path.is_file():
+        return {}
+    return json.loads(path.read_text())
+
+
+def _write_report(folder: Path, report: dict) -> None:
+    from scanner.reports.summary import write_summary
+
+    atomic_write_text(folder / "report.json", json.dumps(report, indent=2) + "\n")
+    write_summary(report, folder)
+
+
+def load_processing_config(path: Path) -> ProcessingConfig:
+    return load_yaml_file(ProcessingConfig, path)

@@ -1,0 +1,148 @@
+"""The reconstruction against the simulator's truth (when truth.yaml is there): surface metrics,
+observed fraction, hand-eye error, and per hanging its coverage and alignment error, all in the
+first (scan's first) hanging's frame."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import invert, transform_points
+from reconstruction.evaluation.metrics import (
+    TriangleSurface,
+    evaluate_surface,
+    handeye_error,
+    sample_surface,
+    truth_sampling,
+    visible_mask,
+)
+from reconstruction.hangings.alignment import alignment_error
+from reconstruction.pipeline import ReconstructionResult
+from scanner.reconstruct.scan_views import Gathered
+from scanner.scan.config import ProcessingConfig
+
+
+def _true_eyes(views: Gathered, to_first: list[np.ndarray]) -> dict[int, np.ndarray]:
+    """True left and right camera centres (2, 3) of every view (by capture index), in the first
+    hanging's frame (`to_first`: per hanging, the true transform of its placement onto the
+    first's)."""
+    from robots.models.kinematics import Kinematics
+
+    hanging_of = {i: h for h, indices in enumerate(views.hangings) for i in indices}
+    kin = Kinematics()
+    eyes = {}
+    for i, q in views.joints.items():
+        truth = views.truths[views.scan_of[i]][0]
+        X_WC = kin.X_WF(q + truth.joint_offsets_rad) @ truth.X_FC
+        eyes[i] = transform_points(to_first[hanging_of[i]], truth.stereo.eye_centres_W(X_WC))
+    return eyes
+
+
+def _object_poses(truth) -> list[np.ndarray]:
+    """The object's true pose in each hanging of one scan."""
+    raw = truth[2]
+    return [np.array(X, float) for X in raw.get("X_WO_hangings", [truth[0].X_WO])]
+
+
+def to_first_hanging(views: Gathered) -> list[np.ndarray] | None:
+    """Per hanging (over all scans), the true transform of its placement onto the first
+    scan's first hanging; None without truth for every scan."""
+    if any(t is None for t in views.truths):
+        return None
+    poses = [X for t in views.truths for X in _object_poses(t)]
+    if len(poses) != len(views.hangings):
+        return None
+    return [poses[0] @ invert(X) for X in poses]
+
+
+def _pass_observed(surface, eyes: list[np.ndarray]) -> float:
+    """The share of the true surface one hanging's (true) views saw."""
+    return float(visible_mask(sample_surface(surface, 50_000), surface, eyes).mean())
+
+
+def hangings_report(result, views: Gathered, to_first) -> dict:
+    """Per hanging its views, coverage and alignment figures, and (with truth) its observed
+    fraction and alignment errors."""
+    surface = views.truths[0][1] if to_first is not None else None
+    true_eyes = _true_eyes(views, to_first) if to_first is not None else {}
+    passes = []
+    for h in range(len(views.hangings)):
+        indices = [v.index for v in result.views if v.hanging == h]
+        record: dict = {
+            "hanging": h + 1,
+            "views": len(indices),
+            "coverage_estimate": result.hanging_coverage[h].fraction,
+        }
+        if surface is not None:
+            record["observed_fraction"] = _pass_observed(surface, [true_eyes[i] for i in indices])
+        a = next((a for a in result.alignments if a.hanging == h), None)
+        if a is not None:
+            record.update(
+                overlap=a.overlap,
+                inlier_rms_mm=1e3 * a.inlier_rms_m,
+                free_space_violation=a.free_space_violation,
+                colour_agreement=a.colour_agreement,
+                ambiguity=a.ambiguity,
+                verified=a.verified,
+            )
+            if surface is not None:
+                points_h = transform_points(invert(to_first[h]), surface.vertices)
+                dt, dr = alignment_error(a.T, to_first[h], points_h)
+                record.update(alignment_error_mm=1e3 * dt, alignment_error_deg=math.degrees(dr))
+        passes.append(record)
+    out: dict = {"hangings": passes}
+    errors = [p for p in passes if "alignment_error_mm" in p]
+    if errors:
+        out["alignment_error_mm"] = max(p["alignment_error_mm"] for p in errors)
+        out["alignment_error_deg"] = max(p["alignment_error_deg"] for p in errors)
+    return out
+
+
+def evaluate(
+    result: ReconstructionResult, truth, surface, samples: int, truth_samples
+) -> dict:
+    """Metrics of every surface against the truth (`truth_samples`: from `observed_samples`),
+    and the hand-eye error before/after."""
+    out: dict = {"surfaces": {}}
+    results = {name: TriangleSurface(m.vertices, m.triangles) for name, m in result.meshes.items()}
+    for name, mesh in results.items():
+        out["surfaces"][name] = evaluate_surface(
+            None, surface, result_mesh=mesh, n_samples=samples, truth_samples=truth_samples
+        )
+    out["surfaces"]["fused_cloud"] = evaluate_surface(
+        result.fused.points_W, surface, n_samples=samples, truth_samples=truth_samples
+    )
+    before = handeye_error(result.X_FC_nominal, truth.X_FC)
+    after = handeye_error(result.X_FC, truth.X_FC)
+    out.update(after)
+    out["handeye_error_before_mm"] = before["handeye_error_mm"]
+    out["handeye_error_before_deg"] = before["handeye_error_deg"]
+    return out
+
+
+def observed_samples(views: Gathered, processing: ProcessingConfig, to_first):
+    """Samples of the first scan's true surface and which of them the true views saw: needs
+    only the truth, so it can be computed while the views are registered."""
+    eyes = list(_true_eyes(views, to_first).values())
+    return truth_sampling(views.truths[0][1], eyes, processing.metric_samples)
+
+
+def truth_metrics(
+    result, views: Gathered, processing: ProcessingConfig, to_first, truth_samples=None
+) -> dict:
+    """The report's accuracy keys (against the first scan's truth, in its first hanging's
+    frame): the primary surface's metrics first, then all of them. `truth_samples`: from
+    `observed_samples`, when already computed."""
+    truth = views.truths[0]
+    if truth_samples is None:
+        truth_samples = observed_samples(views, processing, to_first)
+    metrics = evaluate(result, truth[0], truth[1], processing.metric_samples, truth_samples)
+    primary = metrics["surfaces"].get(processing.primary_surface)
+    if primary is None:
+        raise ScannerError(
+            f"processing.primary_surface: '{processing.primary_surface}' was not built "
+            f"(built: {', '.join(metrics['surfaces'])})"
+        )
+    return {**primary, "primary_surface": processing.primary_surface, **metrics}

@@ -1,0 +1,2 @@
+"""`scanner scan`: configuration, the cell it runs on, viewpoints and their order, the decision
+maker, per-view work while the robot moves, and the scan directory (captures, manifest)."""

@@ -1,0 +1,187 @@
+"""The scan configuration: one typed, validated record loaded from YAML (`--config FILE`).
+
+Every section has defaults, so an empty file (or none) is a valid configuration; unknown keys
+are rejected with the list of valid ones. Units are in the field names.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from planners.planner import PlannerConfig
+from reconstruction.common.checks import check_fields, integer, non_negative, positive
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.typed_yaml import from_dict, load_yaml_file, to_dict
+from reconstruction.common.yaml_files import read_yaml
+from reconstruction.pipeline import ReconstructionConfig
+from reconstruction.stereo.camera_model import StereoDesign
+from reconstruction.stereo.params import StereoParams
+from reconstruction.surfaces.export import MeshExportConfig
+from reconstruction.surfaces.meshes import MESH_SUFFIXES
+from robots.models.workcell import WorkcellConfig
+from robots.simulation.truth import ErrorModel
+from scanner.cli.arguments import for_flag
+from scanner.monitor.cell_monitor import MonitorSettings
+from scanner.scan.viewpoints import ViewpointConfig
+
+
+@dataclass(frozen=True)
+class MachineConfig:
+    """Decision-maker retries and settling: the arm counts as at rest when every joint is
+    within settle_tolerance_rad of the goal, polled until settle_timeout_s."""
+
+    capture_retries: int = integer(2, minimum=0)
+    settle_tolerance_rad: float = positive(1e-3)
+    settle_timeout_s: float = positive(5.0)
+
+    def __post_init__(self) -> None:
+        check_fields("machine", self)
+
+
+@dataclass(frozen=True)
+class ProcessingConfig:
+    """How captures become a model (`processing:` in a scan config, or `--config` offline)."""
+
+    stereo: StereoParams = field(default_factory=StereoParams)
+    reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
+    # Points closer than this to the robot, tool, rod or cell primitives are removed.
+    remove_margin_m: float = non_negative(0.01)
+    # The surface whose metrics are the report's headline keys.
+    primary_surface: str = "poisson"
+    mesh_formats: tuple[str, ...] = (".ply",)
+    # Unit, frame and decimation of the mesh files (--units, --frame, --decimate).
+    mesh_export: MeshExportConfig = field(default_factory=MeshExportConfig)
+    # Surface samples for the metrics (area-uniform on the truth and on each result).
+    metric_samples: int = integer(200_000, minimum=1000)
+    # Deviation pictures: the colour scale's end (+-), fixed so that runs compare by eye, and
+    # the tolerance band the statistics count within.
+    deviation_scale_m: float = positive(0.001)
+    deviation_tolerance_m: float = positive(0.0005)
+
+    def __post_init__(self) -> None:
+        bad = [f for f in self.mesh_formats if f not in MESH_SUFFIXES]
+        if bad:
+            raise ScannerError(
+                f"processing.mesh_formats: {', '.join(map(repr, bad))} not known; expected "
+                f"suffixes from {', '.join(MESH_SUFFIXES)}"
+            )
+        check_fields("processing", self)
+
+
+MAX_HANGINGS = 6
+
+
+@dataclass(frozen=True)
+class ScanConfig:
+    object: str = "vase"
+    cell: WorkcellConfig = field(default_factory=WorkcellConfig)
+    # The nominal stereo camera (what the software believes; the simulator's truth equals it
+    # unless a calibration file says otherwise).
+    camera: StereoDesign = field(default_factory=StereoDesign)
+    views: ViewpointConfig = field(default_factory=ViewpointConfig)
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    error_model: ErrorModel = field(default_factory=ErrorModel)
+    machine: MachineConfig = field(default_factory=MachineConfig)
+    # A `scanner calibrate` result (stereo model + X_FC) the software uses instead of the
+    # nominal ones; in simulation the true camera and mount stay those of the error model.
+    calibration_file: str | None = None
+    processing: ProcessingConfig = field(default_factory=ProcessingConfig)
+    # Reconstruct at the end of the scan (off: capture only; `scanner reconstruct` later).
+    reconstruct: bool = True
+    # Real hardware instead of the simulator: 'package.module:factory', factory(config) ->
+    # robots.drivers.interfaces.Hardware (robot + stereo camera drivers). None: the Drake simulation.
+    driver: str | None = None
+    # Passes over the object, re-hung (turned) between them; the passes are aligned and merged
+    # into one model. One hanging never sees the top of a hung object.
+    hangings: int = integer(1, maximum=MAX_HANGINGS)
+    # The static-camera cell monitor (off by default): intrusions pause the scan.
+    monitor: MonitorSettings = field(default_factory=MonitorSettings)
+
+    def __post_init__(self) -> None:
+        check_fields("scan", self)
+
+    @property
+    def scan_center_m(self) -> tuple[float, float, float]:
+        return self.views.center_m or self.cell.object_center_m
+
+
+def load_scan_config(path: Path | None) -> ScanConfig:
+    return ScanConfig() if path is None else load_yaml_file(ScanConfig, path)
+
+
+def scan_config_from_dict(data: dict, where: str) -> ScanConfig:
+    return from_dict(ScanConfig, data, where)
+
+
+def scan_config_to_dict(config: ScanConfig) -> dict:
+    return to_dict(config)
+
+
+def _deep_merge(base, over):
+    if isinstance(base, dict) and isinstance(over, dict):
+        return {**base, **{k: _deep_merge(base.get(k), v) for k, v in over.items()}}
+    return over
+
+
+def resume_request(saved: ScanConfig, path: Path | None, **flags) -> ScanConfig:
+    """What a resume asks for: the saved configuration with only what the user gave now (the
+    keys of a --config file, the flags) applied, so that options not given are never compared."""
+    config = saved
+    if path is not None:
+        given = read_yaml(path, "configuration") or {}
+        config = scan_config_from_dict(_deep_merge(scan_config_to_dict(saved), given), str(path))
+    return with_overrides(config, **flags)
+
+
+def with_overrides(
+    config: ScanConfig,
+    object_spec: str | None = None,
+    size_m: float | None = None,
+    views: int | None = None,
+    radius_m: float | None = None,
+    seed: int | None = None,
+    calibration_file: str | None = None,
+    driver: str | None = None,
+    hangings: int | None = None,
+    max_extra_views: int | None = None,
+    monitor: bool | None = None,
+    intruder_start_s: tuple[float, ...] | None = None,
+) -> ScanConfig:
+    """Command-line flags win over the file; each override is validated like the file, and
+    an error names the flag."""
+    if object_spec is not None:
+        config = replace(config, object=object_spec)
+    if size_m is not None:
+        cell = for_flag("--size", lambda: replace(config.cell, object_size_m=size_m))
+        config = replace(config, cell=cell)
+    if views is not None:
+        config = replace(
+            config, views=for_flag("--views", lambda: replace(config.views, count=views))
+        )
+    if radius_m is not None:
+        config = replace(
+            config, views=for_flag("--radius", lambda: replace(config.views, radius_m=radius_m))
+        )
+    if seed is not None:
+        model = for_flag("--seed", lambda: replace(config.error_model, seed=seed))
+        config = replace(config, error_model=model)
+    if calibration_file is not None:
+        config = replace(config, calibration_file=calibration_file)
+    if driver is not None:
+        config = replace(config, driver=driver)
+    if max_extra_views is not None:
+        views_config = for_flag(
+            "--max-extra-views", lambda: replace(config.views, max_extra_views=max_extra_views)
+        )
+        config = replace(config, views=views_config)
+    if hangings is not None:
+        config = for_flag("--hangings", lambda: replace(config, hangings=hangings))
+    if monitor:
+        config = replace(config, monitor=replace(config.monitor, enabled=True))
+    if intruder_start_s is not None:
+        settings = for_flag(
+            "--intruder", lambda: replace(config.monitor, intruder_start_s=intruder_start_s)
+        )
+        config = replace(config, monitor=settings)
+    return config

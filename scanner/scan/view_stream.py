@@ -1,0 +1,152 @@
+"""Per-view work while the robot moves: stereo, cropping, robot/cell point removal and the
+outlier filter of each capture run on worker threads beside the capture loop, so that the
+reconstruction at the end of a scan only registers, corrects and builds surfaces.
+
+The workers take each capture as it was stored (or read it back from the scan directory) and
+run exactly the functions the offline `scanner reconstruct` runs, with the scan's own camera
+model, X_FC and processing settings: the streamed views are what the offline run would
+compute, and the reconstruction uses them only when those three are still the ones it
+reconstructs with. At most `max_pending` captures are with the workers (the capture loop
+waits beyond that), so memory stays bounded however far they fall behind.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.typed_yaml import to_dict
+from reconstruction.pipeline import VIEW_THREADS
+from reconstruction.registration.filtering import FilteredCloud, filter_view
+from reconstruction.registration.views import ViewCloud
+from reconstruction.stereo.camera_model import stereo_camera_to_dict
+from reconstruction.stereo.rectification import compute_rectification
+from scanner.reconstruct.scan_views import geometry_filter, stereo_view, with_roi_centre
+from scanner.scan.captures import Capture
+from scanner.scan.manifest import SavedScan
+
+log = logging.getLogger("scanner.scan.run")
+
+
+def settings_key(scan: SavedScan, processing, X_FC: np.ndarray, stereo) -> tuple:
+    """What per-view results depend on besides the captures: equal keys, equal results."""
+    return (
+        str(scan.root.resolve()),
+        repr(to_dict(processing)),
+        np.asarray(X_FC, float).tobytes(),
+        repr(stereo_camera_to_dict(stereo)),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class StreamedView:
+    """One capture's per-view results: its view (cloud in C, depth map), its joint positions,
+    its filtered cloud (None when too few points were left: the reconstruction skips it), and
+    the seconds the worker spent on it."""
+
+    view: ViewCloud
+    q_rad: np.ndarray
+    cloud: FilteredCloud | None
+    seconds: float
+
+
+@dataclass(frozen=True, eq=False)
+class StreamedViews:
+    """What the worker finished: per capture index, and the captures it could not read."""
+
+    key: tuple
+    views: dict[int, StreamedView] = field(default_factory=dict)
+    failed: dict[int, str] = field(default_factory=dict)
+
+    def processing_s(self) -> dict[int, float]:
+        return {i: v.seconds for i, v in self.views.items()}
+
+
+class ViewStream:
+    """`submit(index)` after each stored capture; `finish()` waits and returns the results."""
+
+    def __init__(
+        self, scan: SavedScan, max_pending: int = VIEW_THREADS + 1, workers: int = VIEW_THREADS
+    ) -> None:
+        self.scan = scan
+        processing = scan.config.processing
+        self._params = processing.stereo
+        self._config = with_roi_centre(
+            processing.reconstruction, np.array(scan.config.scan_center_m)
+        )
+        self._rect = compute_rectification(scan.stereo)
+        self._joints: dict[int, np.ndarray] = {}
+        self._remove = geometry_filter(
+            scan.config, scan.X_FC_nominal, scan.stereo, self._joints, processing.remove_margin_m
+        )
+        self._result = StreamedViews(settings_key(scan, processing, scan.X_FC_nominal, scan.stereo))
+        self._slots = threading.BoundedSemaphore(max_pending)
+        self._pool = ThreadPoolExecutor(workers, thread_name_prefix="view-stream")
+        self._futures: list[Future] = []
+
+    def submit(self, index: int, capture: Capture | None = None) -> None:
+        """Process capture `index`: the stored capture itself when given (no decoding of its
+        images again), else read back from the scan directory."""
+        self._slots.acquire()
+        self._futures.append(self._pool.submit(self._process, index, capture))
+
+    def _process(self, index: int, capture: Capture | None = None) -> None:
+        t0 = time.perf_counter()
+        try:
+            view, q = stereo_view(
+                self.scan, index, self._rect, self.scan.X_FC_nominal, self._params, capture
+            )
+            self._joints[index] = q
+            cloud = filter_view(
+                index,
+                view.points_C,
+                view.colors,
+                view.X_WF @ self.scan.X_FC_nominal,
+                self._config.filter,
+                self._remove,
+            )
+            kept = cloud if len(cloud) >= self._config.filter.min_points else None
+            seconds = time.perf_counter() - t0
+            self._result.views[index] = StreamedView(view, q, kept, seconds)
+        except ScannerError as e:
+            # The final stage reads the capture again and reports it as offline runs do.
+            self._result.failed[index] = str(e)
+        finally:
+            self._slots.release()
+
+    def finish(self) -> StreamedViews:
+        """Wait for every submitted capture; a programming error in the worker is raised here."""
+        self._pool.shutdown(wait=True)
+        for f in self._futures:
+            f.result()
+        return self._result
+
+
+def processing_hidden_s(outcomes, seconds: dict[int, float]) -> float:
+    """Per-view work that fits in the robot's motion to the next view (the simulated motion
+    clock): for each streamed capture, min(its processing time, the next motion)."""
+    hidden = 0.0
+    for outcome, following in zip(outcomes, outcomes[1:]):
+        if outcome.index in seconds:
+            hidden += min(seconds[outcome.index], following.motion_s)
+    return hidden
+
+
+def with_stream(process, stream: ViewStream | None):
+    """The decision maker's PROCESS step: the given one (the live view), then the capture
+    handed to the stream."""
+    if stream is None:
+        return process
+
+    def both(capture) -> None:
+        if process is not None:
+            process(capture)
+        stream.submit(capture.pose_index, capture)
+
+    return both
