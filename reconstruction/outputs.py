@@ -16,7 +16,8 @@ from reconstruction.surfaces.export import (
     export_record,
     prepare_exports,
 )
-from reconstruction.surfaces.meshes import save_cloud, save_mesh
+from reconstruction.surfaces.fused import save_cloud
+from reconstruction.surfaces.meshes import save_mesh
 from reconstruction.surfaces.topology import mesh_quality
 
 # Beside the meshes: their unit, frame and decimation (a reader of an STL has no other way to

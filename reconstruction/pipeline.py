@@ -49,16 +49,10 @@ from reconstruction.registration.pairwise import (
 )
 from reconstruction.registration.posegraph import PoseGraphConfig, optimise_pose_graph
 from reconstruction.registration.views import ViewCloud
-from reconstruction.surfaces.meshes import (
-    DepthView,
-    FusedCloud,
-    SurfaceConfig,
-    SurfaceInput,
-    SurfaceMesh,
-    fuse_clouds,
-    refine_fused,
-    surface_from,
-)
+from reconstruction.surfaces.build import surface_from
+from reconstruction.surfaces.config import SurfaceConfig
+from reconstruction.surfaces.fused import FusedCloud, fuse_clouds, refine_fused
+from reconstruction.surfaces.meshes import DepthView, SurfaceInput, SurfaceMesh
 from reconstruction.surfaces.poisson_solver import start_solver
 
 # Views processed at a time (stereo, filtering): SGBM keeps both cores of the target machine

@@ -17,7 +17,7 @@ import tempfile
 from dataclasses import fields, replace
 from pathlib import Path
 
-from reconstruction.surfaces.meshes import SurfaceConfig
+from reconstruction.surfaces.config import SurfaceConfig
 from scanner.reconstruct.stages import run_reconstruct
 from scanner.scan.config import ProcessingConfig, ScanConfig, with_overrides
 from scanner.scan.run import run_scan

@@ -113,7 +113,8 @@ def test_building_the_parser_leaves_the_configurations_unimported():
     # wait for them, so help defaults are read only when help is printed.
     code = (
         "import sys; from scanner.cli.main import build_parser; build_parser(); "
-        "heavy = ('pydrake', 'scanner.scan.config', 'scanner.calibrate.config', 'robots.simulation.truth'); "
+        "heavy = ('pydrake', 'scanner.scan.config', 'scanner.calibrate.config', "
+        "'robots.simulation.truth'); "
         "print([m for m in heavy if m in sys.modules])"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

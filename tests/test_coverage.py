@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from reconstruction.evaluation.coverage import coverage_estimate
-from reconstruction.surfaces.meshes import FusedCloud
+from reconstruction.surfaces.fused import FusedCloud
 
 
 def _sphere_cloud(n: int, radius: float, keep) -> FusedCloud:

@@ -3,7 +3,7 @@
 import numpy as np
 import open3d as o3d
 
-from reconstruction.surfaces.meshes import FusedCloud, refine_fused
+from reconstruction.surfaces.fused import FusedCloud, refine_fused
 from reconstruction.surfaces.normals import local_planes, off_surface
 
 

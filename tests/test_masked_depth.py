@@ -5,7 +5,8 @@ import numpy as np
 
 from reconstruction.registration.filtering import RegionOfInterest
 from reconstruction.registration.views import DepthImage
-from reconstruction.surfaces.meshes import HOOK_CELL_M, DepthView, masked_depth
+from reconstruction.surfaces.meshes import DepthView
+from reconstruction.surfaces.tsdf import HOOK_CELL_M, masked_depth
 
 
 def _slanted_plane() -> DepthView:

@@ -28,7 +28,8 @@ from reconstruction.surfaces.export import (
     prepare_exports,
     principal_frame,
 )
-from reconstruction.surfaces.meshes import FusedCloud, SurfaceMesh
+from reconstruction.surfaces.fused import FusedCloud
+from reconstruction.surfaces.meshes import SurfaceMesh
 from reconstruction.surfaces.topology import mesh_quality
 from scanner.reconstruct.command import ReconstructOptions, _mesh_export
 from scanner.reconstruct.stages import load_processing_config

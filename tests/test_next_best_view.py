@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from reconstruction.evaluation.metrics import TriangleSurface, sample_surface, visible_mask
-from reconstruction.surfaces.meshes import FusedCloud
+from reconstruction.surfaces.fused import FusedCloud
 from scanner.scan.next_best_view import CoverageModel
 
 

@@ -21,7 +21,7 @@ from reconstruction.pipeline import ReconstructionConfig, reconstruct_views, var
 from reconstruction.registration.filtering import FilterConfig, RegionOfInterest
 from reconstruction.registration.pairwise import IcpConfig
 from reconstruction.registration.views import ViewCloud
-from reconstruction.surfaces.meshes import SurfaceConfig
+from reconstruction.surfaces.config import SurfaceConfig
 
 # Defaults except what keeps this file at seconds: 4 ICP partners per view (default 6) and
 # Poisson depth 8 (default 9, ~0.8 mm cells instead of ~0.4 mm).
@@ -290,7 +290,7 @@ def test_the_coverage_estimated_beside_the_meshes_is_that_of_the_result(scan):
     meshes are built: the same figures as estimating it from the finished result, for all
     views and for each hanging alone."""
     from reconstruction.evaluation.coverage import coverage_estimate
-    from reconstruction.surfaces.meshes import fuse_clouds
+    from reconstruction.surfaces.fused import fuse_clouds
 
     X_CR = np.eye(4)
     X_CR[0, 3] = 0.12

@@ -27,15 +27,10 @@ from synthetic_views import (
 from reconstruction.common.errors import ScannerError
 from reconstruction.evaluation.metrics import TriangleSurface, evaluate_surface
 from reconstruction.registration.filtering import FilterConfig, RegionOfInterest, filter_view
-from reconstruction.surfaces.meshes import (
-    DepthView,
-    SurfaceConfig,
-    SurfaceMesh,
-    build_surface,
-    fuse_clouds,
-    save_cloud,
-    save_mesh,
-)
+from reconstruction.surfaces.build import build_surface
+from reconstruction.surfaces.config import SurfaceConfig
+from reconstruction.surfaces.fused import fuse_clouds, save_cloud
+from reconstruction.surfaces.meshes import DepthView, SurfaceMesh, save_mesh
 from reconstruction.surfaces.topology import mesh_quality
 
 ROI = RegionOfInterest(center_m=tuple(OBJECT_CENTER_W), radius_m=0.1)
@@ -189,3 +184,12 @@ def test_fused_cloud_is_written_as_ply(tmp_path, band):
     save_cloud(fused, tmp_path / "cloud.ply")
     back = o3d.io.read_point_cloud(str(tmp_path / "cloud.ply"))
     assert len(back.points) == len(fused) and back.has_normals() and back.has_colors()
+
+
+def test_the_configuration_knows_exactly_the_methods_that_exist():
+    from reconstruction.surfaces.build import SURFACE_METHODS
+    from reconstruction.surfaces.config import SURFACE_METHOD_NAMES, SurfaceConfig
+
+    assert set(SURFACE_METHOD_NAMES) == set(SURFACE_METHODS)
+    with pytest.raises(ScannerError, match="surfaces.methods: unknown marching"):
+        SurfaceConfig(methods=("poisson", "marching"))

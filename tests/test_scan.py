@@ -52,8 +52,8 @@ def test_tiny_scan_captures_every_view(tiny_scan):
 
 
 def test_the_scan_prints_its_figures_with_verdicts_and_where_the_summary_is(tiny_scan):
-    from scanner.cli.main import scan_result_lines
     from scanner.reports.judgement import FIGURES
+    from scanner.scan.command import scan_result_lines
 
     lines = scan_result_lines(tiny_scan)
     r = tiny_scan.report

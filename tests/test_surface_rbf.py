@@ -9,7 +9,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from reconstruction.common.errors import ScannerError
-from reconstruction.surfaces.meshes import FusedCloud, SurfaceConfig, build_surface, rbf_params
+from reconstruction.surfaces.build import build_surface, rbf_params
+from reconstruction.surfaces.config import SurfaceConfig
+from reconstruction.surfaces.fused import FusedCloud
 from reconstruction.surfaces.rbf import RbfParams, rbf_surface
 
 RADIUS_M = 0.05

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from reconstruction.evaluation.metrics import TriangleSurface, sample_surface, visible_mask
-from reconstruction.surfaces.meshes import FusedCloud
+from reconstruction.surfaces.fused import FusedCloud
 from reconstruction.surfaces.topology import triangle_components
 
 

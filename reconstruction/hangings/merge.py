@@ -16,7 +16,7 @@ from reconstruction.common.transforms import transform_points
 from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment, SeenSpace, align_pass
 from reconstruction.registration.filtering import FilteredCloud
 from reconstruction.registration.views import ViewCloud
-from reconstruction.surfaces.meshes import fuse_clouds
+from reconstruction.surfaces.fused import fuse_clouds
 
 
 def group_positions(

@@ -113,7 +113,8 @@ def load_hardware(spec: str, config: object) -> Hardware:
         and isinstance(hardware.camera, StereoCameraDriver)
     ):
         raise ScannerError(
-            f"driver: {spec} returned {type(hardware).__name__}; expected robots.drivers.interfaces.Hardware"
+            f"driver: {spec} returned {type(hardware).__name__}; "
+            "expected robots.drivers.interfaces.Hardware"
             " holding a RobotDriver and a StereoCameraDriver"
         )
     return hardware

@@ -34,6 +34,7 @@ def add_calibrate_parser(sub) -> None:
         "(DIR/results/calibration.yaml). --offline DIR calibrates from recorded images and "
         "robot poses instead; --eye-to-hand calibrates a static camera against the robot.",
     )
+    calibrate.set_defaults(run="scanner.calibrate.cli:run_calibrate_command")
     _add_run_arguments(calibrate)
     _add_board_arguments(calibrate)
     _add_offline_arguments(calibrate)

@@ -73,7 +73,8 @@ class CalibrateConfig:
     eye_to_hand: EyeToHandConfig = field(default_factory=EyeToHandConfig)
     # Stations are in open space in front of the robot: a smaller roadmap than a scan's does.
     planner: PlannerConfig = field(default_factory=lambda: PlannerConfig(roadmap_milestones=400))
-    # Real hardware for eye-in-hand runs: 'package.module:factory' (see robots.drivers.interfaces.Hardware);
+    # Real hardware for eye-in-hand runs: 'package.module:factory' (see
+    # robots.drivers.interfaces.Hardware);
     # the board then stands where `placement` says. None: the Drake simulation.
     driver: str | None = None
 

@@ -42,6 +42,7 @@ def add_export_parser(sub) -> None:
         "(left.yaml, right.yaml), or its hand-eye X_FC as a ROS static transform "
         "(hand_eye_tf.yaml with the static_transform_publisher commands).",
     )
+    export.set_defaults(run="scanner.calibrate.exchange:run_export")
     # Names are checked by the command (one line listing the valid ones), as `calibrate` does.
     export.add_argument(
         "calibration", type=path_arg, metavar="CALIBRATION_FILE", help="from `scanner calibrate`"
@@ -77,6 +78,7 @@ def add_import_parser(sub) -> None:
         "that scan and reconstruct read with --calibration. X_FC comes from --hand-eye, else it "
         "is the camera tool's nominal mount (what a scan assumes without a calibration).",
     )
+    imp.set_defaults(run="scanner.calibrate.exchange:run_import")
     imp.add_argument("folder", type=path_arg, metavar="DIR", help="folder holding the files")
     imp.add_argument(
         "--format", type=name_arg, required=True, help="opencv or ros (required, no default)"

@@ -113,9 +113,7 @@ def report_text(report: dict) -> str:
         *figure_lines(report),
     ]
     if report.get("options"):
-        lines.append(
-            "options: " + ", ".join(f"{k} {v}" for k, v in report["options"].items())
-        )
+        lines.append("options: " + ", ".join(f"{k} {v}" for k, v in report["options"].items()))
     lines.append(f"poses: {report['poses_used']} used of {report['poses']}")
     if report["poses_outliers"]:
         lines.append(f"  rejected as outliers: {', '.join(report['poses_outliers'])}")

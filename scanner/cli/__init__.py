@@ -1,1 +1,2 @@
-"""The `scanner` command line: the parser, shared argument types and the dispatch to each command."""
+"""The `scanner` command line: the parser, shared argument types and the dispatch to each
+command."""

@@ -199,6 +199,7 @@ def add_driver_argument(parser: argparse.ArgumentParser, what: str, note: str = 
         "--driver",
         type=name_arg,
         metavar="MODULE:FACTORY",
-        help=f"{what} with real hardware: factory(config) returns robots.drivers.interfaces.Hardware "
+        help=f"{what} with real hardware: factory(config) returns "
+        "robots.drivers.interfaces.Hardware "
         f"(default: the Drake simulation){note}",
     )

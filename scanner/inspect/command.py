@@ -33,6 +33,7 @@ def add_inspect_parser(sub) -> None:
         "the model coloured by deviation, and a pass/fail line. Exit code 0 pass, "
         f"{EXIT_OUT_OF_TOLERANCE} out of tolerance, 3 when the reference cannot be aligned.",
     )
+    inspect.set_defaults(run="scanner.inspect.command:run_inspect_command")
     inspect.add_argument(
         "model",
         type=path_arg,

@@ -18,6 +18,7 @@ def add_monitor_parser(sub) -> None:
         "background model, robot pixels removed by its geometry, stereo confirmation inside "
         "the monitored volume. Prints every event and the monitor's figures.",
     )
+    monitor.set_defaults(run="scanner.monitor.command:run_monitor_command")
     monitor.add_argument(
         "--duration",
         type=positive_float,

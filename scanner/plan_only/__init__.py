@@ -1,1 +1,2 @@
-"""`scanner scan --plan-only`: the views, tour and motions planned as a scan would, nothing moved."""
+"""`scanner scan --plan-only`: the views, tour and motions planned as a scan would plan them;
+nothing moves."""

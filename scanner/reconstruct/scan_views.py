@@ -20,7 +20,7 @@ from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.stereo.cloud import depth_image, view_cloud
 from reconstruction.stereo.params import StereoParams
 from reconstruction.stereo.rectification import Rectification, compute_rectification
-from reconstruction.surfaces.meshes import FusedCloud, fuse_clouds
+from reconstruction.surfaces.fused import FusedCloud, fuse_clouds
 from robots.models.workcell import keep_out_radius_m
 from scanner.scan.captures import Capture
 from scanner.scan.config import ProcessingConfig, ScanConfig

@@ -90,7 +90,8 @@ class ScanConfig:
     # Reconstruct at the end of the scan (off: capture only; `scanner reconstruct` later).
     reconstruct: bool = True
     # Real hardware instead of the simulator: 'package.module:factory', factory(config) ->
-    # robots.drivers.interfaces.Hardware (robot + stereo camera drivers). None: the Drake simulation.
+    # robots.drivers.interfaces.Hardware (robot + stereo camera drivers). None: the Drake
+    # simulation.
     driver: str | None = None
     # Passes over the object, re-hung (turned) between them; the passes are aligned and merged
     # into one model. One hanging never sees the top of a hung object.

@@ -23,7 +23,7 @@ from reconstruction.evaluation.metrics import (
     visibility,
     visible_mask,
 )
-from reconstruction.surfaces.meshes import FusedCloud
+from reconstruction.surfaces.fused import FusedCloud
 
 # Candidates closer than this to a view already taken add little.
 MIN_SEPARATION_RAD = math.radians(10.0)
