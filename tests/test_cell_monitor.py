@@ -32,7 +32,7 @@ def intruded(tmp_path_factory):
 
 
 def test_an_intruder_pauses_the_scan_and_no_capture_is_taken_while_it_is_there(intruded):
-    from robots.simulation.cell_video.video import default_intruder_paths
+    from robots.simulation.cell_video.intruders import default_intruder_paths
 
     r = intruded.report
     m = r["monitor"]

@@ -16,12 +16,12 @@ from robots.drivers.interfaces import JointTrajectory
 from robots.models.camera_tool import tool_visual_boxes
 from robots.models.kinematics import Kinematics
 from robots.simulation.cell import HOME_Q
-from robots.simulation.cell_video.video import (
+from robots.simulation.cell_video.intruders import (
     MONITORED_VOLUME,
-    CellVideo,
     IntruderPath,
     default_intruder_paths,
 )
+from robots.simulation.cell_video.video import CellVideo
 
 # Sensor noise is 2 grey levels: a difference of two frames above 20 is 7 sigma, never noise.
 CHANGED_GREY = 20

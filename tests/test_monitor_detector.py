@@ -171,18 +171,15 @@ def test_bad_config_names_the_field(field, value):
 
 @pytest.fixture(scope="module")
 def cell_run():
-    """Rendered frames of the cell (robots/cell_video.py): the arm moving for 7 s while a
+    """Rendered frames of the cell (robots/simulation/cell_video/): the arm moving for 7 s while a
     forearm reaches in at 3 s and back out; the detector and the tracker fed every frame."""
     from reconstruction.stereo.camera_model import default_stereo_camera
     from robots.drivers.interfaces import JointTrajectory
     from robots.models.camera_tool import BODY_SIZE_M, BRACKET_SIZE_M, nominal_X_FC
     from robots.models.kinematics import Kinematics
     from robots.models.workcell import WorkcellConfig
-    from robots.simulation.cell_video.video import (
-        MONITORED_VOLUME,
-        CellVideo,
-        default_intruder_paths,
-    )
+    from robots.simulation.cell_video.intruders import MONITORED_VOLUME, default_intruder_paths
+    from robots.simulation.cell_video.video import CellVideo
     from robots.simulation.truth import ErrorModel, sample_truth
     from scanner.monitor.ee_tracker import EndEffectorTracker
     from scanner.monitor.stereo_point import StereoRig

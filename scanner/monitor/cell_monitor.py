@@ -49,7 +49,8 @@ class MonitorSettings:
     capture_dwell_s: float = positive(0.2)
     max_lag_s: float = positive(0.5)
     max_wait_s: float = positive(120.0)
-    # Seed of the simulated intruders' paths (robots.simulation.cell_video.video.default_intruder_paths).
+    # Seed of the simulated intruders' paths
+    # (robots.simulation.cell_video.intruders.default_intruder_paths).
     intruder_seed: int = integer(0, minimum=0)
 
     def __post_init__(self) -> None:

@@ -25,7 +25,7 @@ import numpy as np
 from reconstruction.common.checks import check_fields, fraction, integer, non_negative, positive
 from reconstruction.common.errors import ScannerError
 from reconstruction.stereo.rectification import rectify_pair
-from robots.simulation.cell_video.video import MONITORED_VOLUME
+from robots.simulation.cell_video.intruders import MONITORED_VOLUME
 from scanner.monitor.stereo_point import StereoRig, disparity_range, lift_rectified_W
 
 
@@ -68,7 +68,8 @@ class MonitorConfig:
     settle_frames: int = integer(20, minimum=0)
     morph_kernel_px: int = integer(5, minimum=1)
     mask_margin_px: int = integer(8, minimum=0)
-    # The box the default static rig sees whole (robots.simulation.cell_video.video.MONITORED_VOLUME).
+    # The box the default static rig sees whole
+    # (robots.simulation.cell_video.intruders.MONITORED_VOLUME).
     volume_min_m: tuple[float, float, float] = MONITORED_VOLUME.lo_m
     volume_max_m: tuple[float, float, float] = MONITORED_VOLUME.hi_m
     # Nearest depth searched by the stereo match (corners closer to the rig count as this).

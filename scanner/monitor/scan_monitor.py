@@ -21,9 +21,10 @@ MATCH_WINDOW_S = 0.5
 
 
 def intruder_paths(settings: MonitorSettings) -> tuple:
-    """The simulated intruders of a monitored scan (robots.simulation.cell_video.video.IntruderPath), drawn from
-    the settings' start times and seed, reaching into the configured monitored volume."""
-    from robots.simulation.cell_video.video import CellVolume, default_intruder_paths
+    """The simulated intruders of a monitored scan
+    (robots.simulation.cell_video.intruders.IntruderPath), drawn from the settings' start times
+    and seed, reaching into the configured monitored volume."""
+    from robots.simulation.cell_video.intruders import CellVolume, default_intruder_paths
 
     d = settings.detection
     volume = CellVolume(d.volume_min_m, d.volume_max_m)
