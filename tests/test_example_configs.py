@@ -1,0 +1,55 @@
+"""The example configurations shipped in scanner/configs/ load, validate and say what their
+comments promise; the default one is exactly the built-in defaults."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from scanner.scan.config import ScanConfig, load_scan_config, scan_config_to_dict
+
+CONFIGS = Path(__file__).resolve().parents[1] / "scanner" / "configs"
+
+
+def test_every_example_is_tested():
+    assert {p.name for p in CONFIGS.glob("*.yaml")} == {
+        "default.yaml",
+        "two-hangings.yaml",
+        "hardware.yaml",
+        "monitor.yaml",
+    }
+
+
+def test_the_default_example_is_the_built_in_default():
+    assert scan_config_to_dict(load_scan_config(CONFIGS / "default.yaml")) == scan_config_to_dict(
+        ScanConfig()
+    )
+
+
+@pytest.mark.parametrize(
+    "name, expected",
+    [
+        ("two-hangings.yaml", {"hangings": 2, "views.count": 24, "views.max_extra_views": 4}),
+        (
+            "hardware.yaml",
+            {
+                "driver": "my_cell.rx60:connect",
+                "calibration_file": "calibration/calibration.yaml",
+                "views.radius_m": 0.5,
+            },
+        ),
+        ("monitor.yaml", {"monitor.enabled": True, "monitor.intruder_start_s": (4.0, 20.0)}),
+    ],
+)
+def test_each_example_sets_what_it_says_and_keeps_the_rest(name, expected):
+    config = load_scan_config(CONFIGS / name)
+    for path, value in expected.items():
+        got = config
+        for part in path.split("."):
+            got = getattr(got, part)
+        assert got == value, path
+    # Everything the example does not name keeps its default.
+    default = ScanConfig()
+    assert config.processing == default.processing
+    assert config.planner == default.planner
