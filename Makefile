@@ -8,9 +8,11 @@ scan: setup
 	.venv/bin/scanner scan
 
 # pytest exits 5 when no test was collected; that is not a failure of the install. One worker
-# per core, a test file per worker (its module fixtures, e.g. a scan, are built once).
+# per core, a test file per worker (its module fixtures are built once; the scans several files
+# read are built once per run, see tests/conftest.py); the ten slowest tests are listed at the
+# end, so that a test that got slower shows.
 test: setup
-	.venv/bin/python -m pytest -n auto --dist loadfile; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
+	.venv/bin/python -m pytest -n auto --dist loadfile --durations=10; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
 
 lint: setup
 	.venv/bin/ruff check .

@@ -119,7 +119,7 @@ class ViewResult:
     hanging: int = 0
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ReconstructionResult:
     views: tuple[ViewResult, ...]
     edges: tuple[EdgeReport, ...]
@@ -371,21 +371,21 @@ def reconstruct_views(
         for k, (v, c) in enumerate(zip(views, clouds))
     )
     return ReconstructionResult(
-        view_results,
-        registered.report,
-        X_FC_nominal,
-        X_FC,
-        handeye,
-        fused,
-        meshes,
-        timer.seconds,
-        tuple(skipped),
-        tuple(notes),
-        tuple(clouds),
-        alignments,
-        fused_nominal,
-        coverage[0] if coverage else None,
-        tuple(coverage[1:]),
+        views=view_results,
+        edges=registered.report,
+        X_FC_nominal=X_FC_nominal,
+        X_FC=X_FC,
+        handeye=handeye,
+        fused=fused,
+        meshes=meshes,
+        timings_s=timer.seconds,
+        skipped_views=tuple(skipped),
+        notes=tuple(notes),
+        clouds=tuple(clouds),
+        alignments=alignments,
+        fused_nominal=fused_nominal,
+        coverage=coverage[0] if coverage else None,
+        hanging_coverage=tuple(coverage[1:]),
     )
 
 

@@ -25,12 +25,10 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.eye_in_hand import run_eye_in_hand
 from scanner.calibrate.offline import OfflineOptions, calibrate_directory
-from scanner.calibrate.sigma_check import board_observations, error_in_sigmas, summarise
+from scanner.calibrate.sigma_check import error_in_sigmas, render_free_observations, summarise
 
 
 def _rendered_ratios(seed: int, data: Path, scratch: Path) -> list[float]:
@@ -46,38 +44,12 @@ def _rendered_ratios(seed: int, data: Path, scratch: Path) -> list[float]:
 
 
 def _render_free_ratios(seeds: int) -> list[list[float]]:
-    from planners.ik import camera_pose, fk_flange, ik_camera, rig_centre_offset
     from reconstruction.calibration.eye_in_hand import calibrate_hand_eye
-    from robots.models.camera_tool import nominal_X_FC
-    from robots.models.rx60 import RX60
-    from scanner.calibrate.stations import plan_stations
 
     config = CalibrateConfig()
     stereo = config.camera.stereo_camera()
-    X_FC = nominal_X_FC(stereo.baseline_m)
-    X_WB = config.placement.X_WB(config.board)
-    robot = RX60()
-    home = np.array([0.0, -0.4, 2.3, 0.0, 0.8, 0.0])
-    plan = plan_stations(
-        config.stations,
-        config.board,
-        X_WB,
-        stereo,
-        X_FC,
-        lambda v: ik_camera(robot, camera_pose(v, rig_centre_offset(stereo.X_CR)), X_FC),
-        home,
-    )
     rows = []
-    for seed in range(seeds):
-        observations, X_FC_true = board_observations(
-            config.board,
-            X_WB,
-            [s.q for s in plan.stations],
-            stereo,
-            X_FC,
-            seed,
-            lambda q: fk_flange(robot, q),
-        )
+    for observations, X_FC_true in render_free_observations(config, range(seeds)):
         he = calibrate_hand_eye(config.board, observations, stereo, config.solver)
         rows.append(error_in_sigmas(he.X_FC, he.X_FC_sigma, X_FC_true).tolist())
     return rows

@@ -1,7 +1,12 @@
-"""Shared fixtures: the simulated world is built once per session (it is the slow part)."""
+"""Shared fixtures: the simulated world is built once per session (it is the slow part), and the
+scans several test files read are built once per test run, whichever worker asks first."""
 
 from __future__ import annotations
 
+import fcntl
+import json
+import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -41,3 +46,59 @@ def view_q(vase_sim):
     from scanner.scan.preview import first_reachable_view
 
     return first_reachable_view(vase_sim, 0.5)[1]
+
+
+@pytest.fixture(scope="session")
+def run_dir(tmp_path_factory, worker_id) -> Path:
+    """A folder every pytest-xdist worker of this run shares (the workers' temp folders' parent;
+    a run without workers has its own)."""
+    base = tmp_path_factory.getbasetemp()
+    return base if worker_id == "master" else base.parent
+
+
+def built_once(root: Path, name: str, build: Callable[[Path], object]) -> Path:
+    """`root / name`, built by `build(path)` by the first worker that asks; the others wait for
+    it (a lock file) and read the same folder. A build that failed is tried again by the next."""
+    out = root / name
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        done = root / f"{name}.done"
+        if not done.exists():
+            shutil.rmtree(out, ignore_errors=True)
+            build(out)
+            done.touch()
+    return out
+
+
+@pytest.fixture(scope="session")
+def tiny_scan(run_dir):
+    """The tiny simulated scan (5 views at 320x240, reconstructed), shared by every test file:
+    READ it only; a test that writes into a scan folder works on a copy (`shutil.copytree`)."""
+    import yaml
+
+    from scanner.scan.config import load_scan_config
+    from scanner.scan.run import ScanResult, run_scan
+    from tests.tiny_scan import TINY_SCAN
+
+    def build(out: Path) -> None:
+        config_file = run_dir / "tiny-scan.yaml"
+        config_file.write_text(yaml.safe_dump(TINY_SCAN))
+        run_scan(load_scan_config(config_file), out)
+
+    scan_dir = built_once(run_dir, "tiny-scan", build)
+    return ScanResult(scan_dir, json.loads((scan_dir / "results" / "report.json").read_text()))
+
+
+@pytest.fixture(scope="session")
+def vase12_scan_dir(run_dir) -> Path:
+    """A full-resolution 12-view scan of the vase with the default error model, captured and not
+    reconstructed; shared like `tiny_scan` (read only)."""
+    from dataclasses import replace
+
+    from scanner.scan.config import ScanConfig, with_overrides
+    from scanner.scan.run import run_scan
+
+    def build(out: Path) -> None:
+        run_scan(replace(with_overrides(ScanConfig(), views=12, seed=0), reconstruct=False), out)
+
+    return built_once(run_dir, "vase12-scan", build)

@@ -1,56 +1,29 @@
 """The reported standard deviation of X_FC against the simulator's truth over ten seeds.
 
-Ten calibrations without rendering (`scanner.calibrate.sigma_check.board_observations`: the
-default stations, the seeded error model, corner noise as measured on the renders), 1-2 s each.
-The rendered version of the same check is scripts/bench_calibration_sigma.py (a minute a seed).
+Ten calibrations without rendering (`scanner.calibrate.sigma_check.render_free_observations`:
+the default stations, the seeded error model, corner noise as measured on the renders), 1-2 s
+each. The rendered version of the same check is scripts/bench_calibration_sigma.py (a minute a
+seed).
 """
 
 import numpy as np
 import pytest
 
-from planners.ik import camera_pose, fk_flange, ik_camera, rig_centre_offset
-from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.eye_in_hand import calibrate_hand_eye, hand_eye_covariance
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.transforms import invert, make_pose, pose_to_twist, rotation_about
-from reconstruction.stereo.camera_model import StereoDesign
-from robots.models.calibration_board import BoardPlacement
 from robots.models.camera_tool import nominal_X_FC
-from robots.models.rx60 import RX60
-from scanner.calibrate.sigma_check import board_observations, error_in_sigmas, summarise
-from scanner.calibrate.stations import StationConfig, plan_stations
-
-BOARD = BoardSpec("chessboard", 10, 7, 0.02)
-HOME_Q = np.array([0.0, -0.4, 2.3, 0.0, 0.8, 0.0])  # the simulated arm's start
+from scanner.calibrate.config import CalibrateConfig
+from scanner.calibrate.sigma_check import error_in_sigmas, render_free_observations, summarise
 
 
 @pytest.fixture(scope="module")
 def ratios():
-    stereo = StereoDesign().stereo_camera()
-    X_FC = nominal_X_FC(stereo.baseline_m)
-    robot = RX60()
-    X_WB = BoardPlacement().X_WB(BOARD)
-    plan = plan_stations(
-        StationConfig(),
-        BOARD,
-        X_WB,
-        stereo,
-        X_FC,
-        lambda v: ik_camera(robot, camera_pose(v, rig_centre_offset(stereo.X_CR)), X_FC),
-        HOME_Q,
-    )
+    config = CalibrateConfig()
+    stereo = config.camera.stereo_camera()
     rows = []
-    for seed in range(10):
-        observations, X_FC_true = board_observations(
-            BOARD,
-            X_WB,
-            [s.q for s in plan.stations],
-            stereo,
-            X_FC,
-            seed,
-            lambda q: fk_flange(robot, q),
-        )
-        he = calibrate_hand_eye(BOARD, observations, stereo)
+    for observations, X_FC_true in render_free_observations(config, range(10)):
+        he = calibrate_hand_eye(config.board, observations, stereo)
         rows.append((he, error_in_sigmas(he.X_FC, he.X_FC_sigma, X_FC_true)))
     return rows
 

@@ -81,9 +81,8 @@ def test_scan_killed_while_reconstructing_resumes_into_a_complete_result(tiny_fi
 
 
 @pytest.fixture(scope="module")
-def tiny_scan_dir(tiny_file, tmp_path_factory) -> Path:
-    config = replace(load_scan_config(tiny_file), reconstruct=False)
-    return run_scan(config, tmp_path_factory.mktemp("scans") / "tiny").scan_dir
+def tiny_scan_dir(tiny_scan) -> Path:
+    return tiny_scan.scan_dir
 
 
 def test_reconstruct_killed_while_writing_leaves_no_results(tiny_scan_dir, tmp_path):

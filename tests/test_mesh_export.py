@@ -34,7 +34,6 @@ from reconstruction.surfaces.topology import mesh_quality
 from scanner.reconstruct.command import ReconstructOptions, _mesh_export
 from scanner.reconstruct.stages import load_processing_config
 from scanner.scan.config import load_scan_config
-from tests.tiny_scan import TINY_SCAN
 
 # Where the robot's world puts a scanned object (the brief's STL spans x 0.30-0.51 m,
 # z 0.92-1.08 m): far from the origin, so a frame or unit slip cannot hide.
@@ -66,7 +65,19 @@ def _placed_sphere(resolution: int) -> SurfaceMesh:
 def _result(meshes: dict[str, SurfaceMesh]) -> ReconstructionResult:
     points = np.vstack([m.vertices for m in meshes.values()])[:100]
     fused = FusedCloud(points, np.zeros((len(points), 3), np.uint8), np.tile([0, 0, 1.0], (100, 1)))
-    return ReconstructionResult((), (), np.eye(4), np.eye(4), None, fused, meshes, {}, (), (), ())
+    return ReconstructionResult(
+        views=(),
+        edges=(),
+        X_FC_nominal=np.eye(4),
+        X_FC=np.eye(4),
+        handeye=None,
+        fused=fused,
+        meshes=meshes,
+        timings_s={},
+        skipped_views=(),
+        notes=(),
+        clouds=(),
+    )
 
 
 def _read(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -223,12 +234,8 @@ def test_bad_flags_are_one_line_errors_naming_the_flag(option, value, message):
 
 
 @pytest.fixture(scope="module")
-def tiny_scan_dir(tmp_path_factory) -> Path:
-    from scanner.scan.run import run_scan
-
-    path = tmp_path_factory.mktemp("cfg") / "tiny.yaml"
-    path.write_text(yaml.safe_dump({**TINY_SCAN, "reconstruct": False}))
-    return run_scan(load_scan_config(path), tmp_path_factory.mktemp("scans") / "tiny").scan_dir
+def tiny_scan_dir(tiny_scan) -> Path:
+    return tiny_scan.scan_dir
 
 
 def test_reconstruct_writes_mm_object_frame_decimated_meshes(tiny_scan_dir, tmp_path, capsys):

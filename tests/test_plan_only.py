@@ -138,6 +138,7 @@ def test_out_of_reach_views_are_listed_with_their_reason(tmp_path, monkeypatch, 
 
 def _nominal_X_FC() -> np.ndarray:
     from robots.models import camera_tool
+
     return camera_tool.nominal_X_FC(_config().camera.stereo_camera().baseline_m)
 
 

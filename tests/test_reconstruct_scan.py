@@ -1,7 +1,8 @@
 """Reconstruction of a simulated scan with the default error model (3 mm / 1 deg mount error).
 
 One full-resolution scan of the vase (12 views) is reconstructed three ways: corrected (ICP +
-pose graph + hand-eye correction), ICP only, pose only.
+pose graph + hand-eye correction), ICP only, pose only. (Its damaged and rough-mount variants:
+test_reconstruct_bad_inputs.py, so that the two files run side by side.)
 """
 
 import hashlib
@@ -18,9 +19,7 @@ from reconstruction.common.transforms import pose_difference
 from reconstruction.evaluation.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
 from reconstruction.pipeline import variant_config
 from scanner.reconstruct.stages import run_reconstruct
-from scanner.scan.captures import CaptureStore
-from scanner.scan.config import ProcessingConfig, ScanConfig, with_overrides
-from scanner.scan.run import run_scan
+from scanner.scan.config import ProcessingConfig
 
 pytestmark = pytest.mark.slow
 
@@ -35,9 +34,8 @@ def _hashes(scan_dir):
 
 
 @pytest.fixture(scope="module")
-def scan_dir(tmp_path_factory):
-    config = replace(with_overrides(ScanConfig(), views=12, seed=0), reconstruct=False)
-    return run_scan(config, tmp_path_factory.mktemp("rec") / "vase").scan_dir
+def scan_dir(vase12_scan_dir):
+    return vase12_scan_dir
 
 
 @pytest.fixture(scope="module")
@@ -186,62 +184,3 @@ def test_inspecting_against_the_true_mesh_reproduces_the_report(runs, scan_dir, 
     assert dt < 0.0015 and np.degrees(dr) < 0.2
     fitted = best["metrics"]["chamfer_observed_mm"]
     assert metrics["chamfer_observed_mm"] - 0.1 < fitted <= metrics["chamfer_observed_mm"] + 0.005
-
-
-def test_a_damaged_capture_is_skipped_and_reported(scan_dir, tmp_path):
-    import shutil
-
-    copy = tmp_path / "copy"
-    shutil.copytree(scan_dir, copy)
-    (copy / "captures" / "0003" / "right.png").write_bytes(b"\x89PNG\r\n\x1a\n cut short")
-    store = CaptureStore.open(copy)
-    run = run_reconstruct(copy, ProcessingConfig(), tmp_path / "out")
-    (skipped,) = run.report["captures_skipped"]
-    assert skipped["index"] == 3 and "right.png" in skipped["reason"]
-    assert run.report["captures_used"] == len(store.captured_indices()) - 1
-
-
-def _rough_mount_calibration(scan_dir, path):
-    """The scan's camera with the TRUE X_FC moved 40 mm / 10 deg (a hand-made mount)."""
-    from reconstruction.calibration.file import Calibration, save_calibration
-    from reconstruction.common.transforms import twist_to_pose
-    from reconstruction.evaluation.metrics import handeye_error
-    from scanner.reconstruct.scan_views import load_truth_of
-    from scanner.scan.manifest import open_scan
-
-    scan = open_scan(scan_dir)
-    X_FC_true = load_truth_of(scan_dir)[0].X_FC
-    axis = np.array([0.3, -0.8, 0.5]) / np.linalg.norm([0.3, -0.8, 0.5])
-    shift = np.array([0.6, 0.0, -0.8]) * 0.04
-    X_FC = X_FC_true @ twist_to_pose([*(np.radians(10.0) * axis), *shift])
-    start = handeye_error(X_FC, X_FC_true)
-    assert start["handeye_error_mm"] == pytest.approx(40.0, abs=0.1)
-    save_calibration(Calibration(X_FC, scan.stereo, scan.stereo.left, "test"), path)
-    return path
-
-
-def test_a_rough_mount_is_corrected_or_flagged_from_the_command_line(scan_dir, tmp_path, capsys):
-    import yaml
-
-    from scanner.cli.main import main
-
-    calibration = _rough_mount_calibration(scan_dir, tmp_path / "rough.yaml")
-    args = ["reconstruct", str(scan_dir), "--calibration", str(calibration)]
-    assert main([*args, "--out", str(tmp_path / "wide")]) == 0
-    printed = capsys.readouterr().out
-    report = json.loads((tmp_path / "wide" / "report.json").read_text())
-    assert report["handeye_converged"] is True and "WARNING" not in printed
-    assert report["handeye_error_mm"] < 0.5 and report["handeye_error_deg"] < 0.1
-    # Without the coarse stage the correction cannot get there; it must say so and keep the
-    # nominal-pose cloud.
-    config = {"reconstruction": {"handeye": {"coarse": {"enabled": False}}}}
-    (tmp_path / "no_coarse.yaml").write_text(yaml.safe_dump(config))
-    out = tmp_path / "narrow"
-    assert main([*args, "--config", str(tmp_path / "no_coarse.yaml"), "--out", str(out)]) == 0
-    printed = capsys.readouterr().out
-    report = json.loads((out / "report.json").read_text())
-    assert report["handeye_error_mm"] > 2.0  # the premise
-    assert report["handeye_converged"] is False and report["handeye_diagnosis"]["failures"]
-    assert "WARNING: the hand-eye correction did not converge" in printed
-    assert "WARNING" in (out / "summary.md").read_text()
-    assert (out / "fused_cloud_nominal.ply").stat().st_size > 0

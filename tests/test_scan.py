@@ -1,6 +1,7 @@
 """End-to-end simulated scans: tiny (few views, low resolution), killed and resumed, bad input."""
 
 import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,12 +25,6 @@ def tiny_config_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("cfg") / "tiny.yaml"
     path.write_text(yaml.safe_dump(TINY_SCAN))
     return path
-
-
-@pytest.fixture(scope="module")
-def tiny_scan(tiny_config_file, tmp_path_factory):
-    out = tmp_path_factory.mktemp("scans") / "tiny"
-    return run_scan(load_scan_config(tiny_config_file), out)
 
 
 def test_tiny_scan_captures_every_view(tiny_scan):
@@ -154,7 +149,8 @@ def test_sigterm_finishes_the_current_capture_and_leaves_a_resumable_scan(
 
 
 def test_offline_reconstruct_never_replaces_an_earlier_reconstruction(tiny_scan, tmp_path):
-    scan_dir = tiny_scan.scan_dir
+    scan_dir = tmp_path / "scan"
+    shutil.copytree(tiny_scan.scan_dir, scan_dir)
     first = (scan_dir / "results" / "mesh_poisson.ply").read_bytes()
     cli = [sys.executable, "-m", "scanner.cli", "reconstruct", str(scan_dir), "--no-icp"]
     r = subprocess.run(cli, capture_output=True, text=True, timeout=600)

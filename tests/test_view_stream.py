@@ -9,19 +9,15 @@ from reconstruction.pipeline import filter_views
 from reconstruction.stereo.rectification import compute_rectification
 from scanner.reconstruct.scan_views import capture_views, geometry_filter, with_roi_centre
 from scanner.reconstruct.stages import run_reconstruct
-from scanner.scan.config import load_scan_config
 from scanner.scan.decision import ViewOutcome
 from scanner.scan.manifest import open_scan
-from scanner.scan.run import run_scan
 from scanner.scan.view_stream import ViewStream, processing_hidden_s
-from tests.tiny_scan import TINY_SCAN
 
 
 @pytest.fixture(scope="module")
-def streamed_scan(tmp_path_factory):
-    path = tmp_path_factory.mktemp("cfg") / "small.yaml"
-    path.write_text(yaml.safe_dump(TINY_SCAN))
-    return run_scan(load_scan_config(path), tmp_path_factory.mktemp("scans") / "small")
+def streamed_scan(tiny_scan):
+    """The shared tiny scan: its views were streamed while the robot moved."""
+    return tiny_scan
 
 
 def test_the_scan_streamed_its_views_and_says_how_much_was_hidden(streamed_scan):

@@ -106,6 +106,16 @@ def _seen_by_every_eye(scene, p, normals, eyes, todo, max_incidence_rad, offset_
     return todo
 
 
+def _shifted(
+    samples: SurfaceSamples, surface: TriangleSurface, camera_centres_W: Sequence[np.ndarray]
+) -> tuple[o3d.t.geometry.RaycastingScene, np.ndarray, list[np.ndarray]]:
+    """The surface's ray-casting scene, the sample points and each view's eye centres, all
+    relative to the surface's mean vertex (Open3D casts in float32; see distances_to_mesh)."""
+    origin = np.asarray(surface.vertices).mean(axis=0)
+    views = [np.asarray(centre) - origin for centre in camera_centres_W]
+    return _scene(surface, origin), samples.points - origin, views
+
+
 def visible_mask(
     samples: SurfaceSamples,
     surface: TriangleSurface,
@@ -118,13 +128,12 @@ def visible_mask(
     the sample. An eye sees it when the sample faces it (angle between its outward normal and
     the direction to the eye below `max_incidence_rad`) and the segment to it hits no triangle.
     Rays start `offset_m` off the surface so that they do not hit their own triangle."""
-    origin = np.asarray(surface.vertices).mean(axis=0)
-    scene = _scene(surface, origin)
-    p = samples.points - origin
+    scene, p, views = _shifted(samples, surface, camera_centres_W)
     seen = np.zeros(len(p), bool)
-    for centre in camera_centres_W:
-        c = np.asarray(centre) - origin
-        seen |= _seen_by_every_eye(scene, p, samples.normals, c, ~seen, max_incidence_rad, offset_m)
+    for eyes in views:
+        seen |= _seen_by_every_eye(
+            scene, p, samples.normals, eyes, ~seen, max_incidence_rad, offset_m
+        )
     return seen
 
 
@@ -137,14 +146,11 @@ def visibility(
 ):
     """For each view (camera centre or stereo eye centres) in turn, which samples it sees (the
     rule of `visible_mask`); the surface's ray-casting scene is built once."""
-    origin = np.asarray(surface.vertices).mean(axis=0)
-    scene = _scene(surface, origin)
-    p = samples.points - origin
+    scene, p, views = _shifted(samples, surface, camera_centres_W)
     everything = np.ones(len(p), bool)
-    for centre in camera_centres_W:
-        c = np.asarray(centre) - origin
+    for eyes in views:
         yield _seen_by_every_eye(
-            scene, p, samples.normals, c, everything, max_incidence_rad, offset_m
+            scene, p, samples.normals, eyes, everything, max_incidence_rad, offset_m
         )
 
 

@@ -131,7 +131,7 @@ class AxxbSolution:
     error: str = ""  # the solver's failure message; X_FC is then all NaN
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class HandEyeResult:
     """What the correction decided: X_FC used downstream, its change from the nominal one,
     every AX = XB solver's answer, the refinement (if run), and notes on what was not trusted."""
@@ -255,7 +255,16 @@ def correct_handeye(
     )
     dt, dr = pose_difference(X_FC_nominal, X_FC)
     return HandEyeResult(
-        X_FC_nominal, X_FC, dt, dr, axxb, refinement, source, tuple(notes), coarse, diagnosis
+        X_FC_nominal=X_FC_nominal,
+        X_FC=X_FC,
+        change_translation_m=dt,
+        change_rotation_rad=dr,
+        axxb=axxb,
+        refinement=refinement,
+        source=source,
+        notes=tuple(notes),
+        coarse=coarse,
+        diagnosis=diagnosis,
     )
 
 

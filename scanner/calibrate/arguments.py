@@ -7,6 +7,8 @@ import argparse
 
 from scanner.cli.arguments import (
     ConfigDefault,
+    add_command,
+    add_config_file_argument,
     add_config_option,
     add_driver_argument,
     add_output_arguments,
@@ -26,15 +28,16 @@ def _board_size(board) -> str:
 
 
 def add_calibrate_parser(sub) -> None:
-    calibrate = sub.add_parser(
+    calibrate = add_command(
+        sub,
         "calibrate",
+        "scanner.calibrate.cli:run_calibrate_command",
         help="calibrate the stereo camera and the hand-eye transform X_FC",
         description="Move the camera around a calibration board, calibrate the stereo pair and "
         "the hand-eye transform, and write a calibration file that scan/reconstruct use "
         "(DIR/results/calibration.yaml). --offline DIR calibrates from recorded images and "
         "robot poses instead; --eye-to-hand calibrates a static camera against the robot.",
     )
-    calibrate.set_defaults(run="scanner.calibrate.cli:run_calibrate_command")
     _add_run_arguments(calibrate)
     _add_board_arguments(calibrate)
     _add_offline_arguments(calibrate)
@@ -51,10 +54,9 @@ def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
         "calibrations/NAME-TIMESTAMP for another system's images)",
         "replace an existing --out",
     )
-    calibrate.add_argument(
-        "--config",
-        type=path_arg,
-        help="calibration YAML file; flags given win over it (default: none, the built-in "
+    add_config_file_argument(
+        calibrate,
+        "calibration YAML file; flags given win over it (default: none, the built-in "
         "defaults stated here)",
     )
     calibrate.add_argument(

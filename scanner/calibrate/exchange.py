@@ -16,7 +16,7 @@ from contextlib import suppress
 from pathlib import Path
 
 from reconstruction.common.errors import ScannerError
-from scanner.cli.arguments import add_output_arguments, for_flag, name_arg, path_arg
+from scanner.cli.arguments import add_command, add_output_arguments, for_flag, name_arg, path_arg
 
 EXPORT_FORMATS = ("opencv", "ros", "ros-tf")
 IMPORT_FORMATS = ("opencv", "ros")
@@ -34,15 +34,16 @@ def image_size_arg(text: str) -> tuple[int, int]:
 
 
 def add_export_parser(sub) -> None:
-    export = sub.add_parser(
+    export = add_command(
+        sub,
         "export",
+        "scanner.calibrate.exchange:run_export",
         help="write a calibration file as OpenCV or ROS files (camera pair, hand-eye transform)",
         description="Write the stereo camera of a calibration file as OpenCV stereo_calib "
         "files (intrinsics.yml, extrinsics.yml; T in metres) or ROS camera_info files "
         "(left.yaml, right.yaml), or its hand-eye X_FC as a ROS static transform "
         "(hand_eye_tf.yaml with the static_transform_publisher commands).",
     )
-    export.set_defaults(run="scanner.calibrate.exchange:run_export")
     # Names are checked by the command (one line listing the valid ones), as `calibrate` does.
     export.add_argument(
         "calibration", type=path_arg, metavar="CALIBRATION_FILE", help="from `scanner calibrate`"
@@ -70,15 +71,16 @@ def add_export_parser(sub) -> None:
 
 
 def add_import_parser(sub) -> None:
-    imp = sub.add_parser(
+    imp = add_command(
+        sub,
         "import-calibration",
+        "scanner.calibrate.exchange:run_import",
         help="make a calibration file from OpenCV or ROS stereo calibration files",
         description="Read OpenCV stereo_calib files (DIR/intrinsics.yml, DIR/extrinsics.yml) "
         "or ROS camera_info files (DIR/left.yaml, DIR/right.yaml) and write a calibration file "
         "that scan and reconstruct read with --calibration. X_FC comes from --hand-eye, else it "
         "is the camera tool's nominal mount (what a scan assumes without a calibration).",
     )
-    imp.set_defaults(run="scanner.calibrate.exchange:run_import")
     imp.add_argument("folder", type=path_arg, metavar="DIR", help="folder holding the files")
     imp.add_argument(
         "--format", type=name_arg, required=True, help="opencv or ros (required, no default)"

@@ -9,13 +9,14 @@ a norm dominated by the others.
 `board_observations` is the simulator's calibration without rendering (for tests that need ten
 calibrations in seconds): the planned default stations, the seeded error model (hand-eye mount
 error, encoder zero offsets), the true cameras, and Gaussian corner noise of the size measured on
-the renders.
+the renders; `render_free_observations` plans those stations and runs it once per seed.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,6 +25,9 @@ from reconstruction.calibration.observations import PoseObservation
 from reconstruction.common.transforms import invert, pose_to_twist, transform_points
 from reconstruction.stereo.camera_model import StereoCamera, project_points
 from robots.simulation.truth import ErrorModel, sample_truth
+
+if TYPE_CHECKING:
+    from scanner.calibrate.config import CalibrateConfig
 
 SIGMA_BOUND = 3.0
 # findChessboardCornersSB on the simulator's 1280x960 renders: ~0.03 px per coordinate.
@@ -90,3 +94,39 @@ def board_observations(
             views.append(Detection(np.arange(len(p_B)), pixels))
         out.append(PoseObservation(f"{k:04d}", flange_pose(np.asarray(q)), *views))
     return out, np.array(truth.X_FC)
+
+
+def render_free_observations(
+    config: CalibrateConfig, seeds: Iterable[int]
+) -> list[tuple[list[PoseObservation], np.ndarray]]:
+    """(observations, true X_FC) per seed of `board_observations` at the stations `config`
+    plans: its board where its placement puts it, its camera on the nominal mount, stations
+    reached by the RX60's IK from the simulated arm's home joints."""
+    # Imported here: the calibration report imports this module for error_in_sigmas alone.
+    from planners.ik import camera_pose, fk_flange, ik_camera, rig_centre_offset
+    from robots.models.camera_tool import nominal_X_FC
+    from robots.models.rx60 import RX60
+    from robots.simulation.cell import HOME_Q
+    from scanner.calibrate.stations import plan_stations
+
+    stereo = config.camera.stereo_camera()
+    X_FC = nominal_X_FC(stereo.baseline_m)
+    X_WB = config.placement.X_WB(config.board)
+    robot = RX60()
+    X_MC = rig_centre_offset(stereo.X_CR)
+    plan = plan_stations(
+        config.stations,
+        config.board,
+        X_WB,
+        stereo,
+        X_FC,
+        lambda v: ik_camera(robot, camera_pose(v, X_MC), X_FC),
+        HOME_Q,
+    )
+    stations_q = [s.q for s in plan.stations]
+    return [
+        board_observations(
+            config.board, X_WB, stations_q, stereo, X_FC, seed, lambda q: fk_flange(robot, q)
+        )
+        for seed in seeds
+    ]

@@ -1,7 +1,7 @@
-"""The command line's parser class (usage errors in one line), argument types shared by the
-subcommands' parsers (they turn a bad value into a usage error naming the option, exit 2), the
-defaults that help reads from the configuration records, and the options several subcommands
-have."""
+"""The command line's parser class (usage errors in one line), the making of a subcommand's
+parser with its runner, argument types shared by the subcommands' parsers (they turn a bad value
+into a usage error naming the option, exit 2), the defaults that help reads from the
+configuration records, and the options several subcommands have."""
 
 from __future__ import annotations
 
@@ -63,6 +63,21 @@ class ConfigDefault:
 
     def __str__(self) -> str:
         return self.show(self.value())
+
+
+def add_command(sub, name: str, run: str, help: str, description: str) -> argparse.ArgumentParser:
+    """The parser of subcommand `name` in `sub` (the subparsers), with its runner named as
+    'module:function': scanner.cli.main imports the runner only when the command runs, so that
+    building the parser for every command stays light."""
+    parser = sub.add_parser(name, help=help, description=description)
+    parser.set_defaults(run=run)
+    return parser
+
+
+def add_config_file_argument(parser: argparse.ArgumentParser, help: str) -> None:
+    """--config FILE, a YAML file of settings; `help` says which settings, and what applies
+    without it."""
+    parser.add_argument("--config", type=path_arg, help=help)
 
 
 def add_config_option(parser, *flags: str, config: ConfigDefault, **options) -> argparse.Action:

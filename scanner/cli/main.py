@@ -50,8 +50,8 @@ def _version() -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
-    """Each command's parser names its runner (`set_defaults(run="module:function")`), imported
-    only now, so that building the parser stays light."""
+    """Each command's parser names its runner (`add_command(..., run="module:function")`),
+    imported only now, so that building the parser stays light."""
     if getattr(args, "out", None) is not None:
         from scanner.reconstruct.results_folder import require_creatable
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from scanner.cli.arguments import add_output_arguments, path_arg, positive_float
+from scanner.cli.arguments import add_command, add_output_arguments, path_arg, positive_float
 
 # Exit code of an inspection that ran but found the part out of tolerance.
 EXIT_OUT_OF_TOLERANCE = 4
@@ -24,8 +24,10 @@ def add_inspect_parser(sub) -> None:
     from scanner.inspect.inspection import InspectOptions
 
     defaults = InspectOptions(reference=None)
-    inspect = sub.add_parser(
+    inspect = add_command(
+        sub,
         "inspect",
+        "scanner.inspect.command:run_inspect_command",
         help="compare a model with its reference (CAD) mesh: deviations, picture, pass/fail",
         description="Align a reference mesh (e.g. the part's CAD model) onto a reconstructed "
         "model (global features + ICP, reported), then give the signed deviation of every "
@@ -33,7 +35,6 @@ def add_inspect_parser(sub) -> None:
         "the model coloured by deviation, and a pass/fail line. Exit code 0 pass, "
         f"{EXIT_OUT_OF_TOLERANCE} out of tolerance, 3 when the reference cannot be aligned.",
     )
-    inspect.set_defaults(run="scanner.inspect.command:run_inspect_command")
     inspect.add_argument(
         "model",
         type=path_arg,

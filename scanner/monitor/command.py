@@ -5,20 +5,26 @@ from __future__ import annotations
 
 import argparse
 
-from scanner.cli.arguments import path_arg, positive_float, seconds_list
+from scanner.cli.arguments import (
+    add_command,
+    add_config_file_argument,
+    positive_float,
+    seconds_list,
+)
 
 DEFAULT_DURATION_S = 10.0
 
 
 def add_monitor_parser(sub) -> None:
-    monitor = sub.add_parser(
+    monitor = add_command(
+        sub,
         "monitor",
+        "scanner.monitor.command:run_monitor_command",
         help="watch the cell with the static stereo camera for a while and report intrusions",
         description="Watch the simulated cell (arm at rest) with the static stereo camera: "
         "background model, robot pixels removed by its geometry, stereo confirmation inside "
         "the monitored volume. Prints every event and the monitor's figures.",
     )
-    monitor.set_defaults(run="scanner.monitor.command:run_monitor_command")
     monitor.add_argument(
         "--duration",
         type=positive_float,
@@ -32,10 +38,9 @@ def add_monitor_parser(sub) -> None:
         metavar="SECONDS[,SECONDS...]",
         help="simulation: a forearm reaches into the cell at these times (default: none)",
     )
-    monitor.add_argument(
-        "--config",
-        type=path_arg,
-        help="scan configuration YAML: its monitor: section and cell (default: none, the "
+    add_config_file_argument(
+        monitor,
+        "scan configuration YAML: its monitor: section and cell (default: none, the "
         "built-in defaults)",
     )
 

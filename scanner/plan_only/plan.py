@@ -29,6 +29,7 @@ from scanner.scan.world import ScanWorld, setup_world
 PLAN_FILE = "plan.json"  # written last: its presence marks a finished plan folder
 PICTURE_FILE = "plan.png"
 
+
 def _rolls_rad(config: ViewpointConfig) -> np.ndarray:
     """The set of camera rolls the view generator tries (its order does not matter here)."""
     return 2 * math.pi * np.arange(config.roll_candidates) / config.roll_candidates
@@ -130,27 +131,19 @@ def _plan_pass(
     for position, view in enumerate(ordered, start=first_order):
         trajectory, failures = _visit(planner, views, view, q_now)
         if trajectory is None:
+            # Not reached: the pose asked for, and why each option failed; the arm stays put.
+            X_WC = camera_pose(view.viewpoint, planner.X_MC)
+            q_rad, motion_s = None, 0.0
+            reason = failures[0].reason
             detail = "planning failed for every option: " + "; ".join(
                 f"{f.reason}: {f.detail}" for f in failures
             )
-            X_WC = camera_pose(view.viewpoint, planner.X_MC)
-            out.append(
-                PlannedViewpoint(
-                    view.index,
-                    hanging,
-                    position,
-                    view.direction,
-                    X_WC,
-                    None,
-                    reachable=False,
-                    reason=failures[0].reason,
-                    detail=detail,
-                )
-            )
-            continue
-        # Where the executed trajectory ends (its last sample), as the arm would report it.
-        q_now = trajectory.to_joint_trajectory().positions_rad[-1].copy()
-        X_WC = kin.X_WF(q_now) @ world.X_FC
+        else:
+            # Where the executed trajectory ends (its last sample), as the arm would report it.
+            q_now = trajectory.to_joint_trajectory().positions_rad[-1].copy()
+            X_WC = kin.X_WF(q_now) @ world.X_FC
+            q_rad, motion_s = q_now, float(trajectory.duration_s)
+            reason = detail = ""
         out.append(
             PlannedViewpoint(
                 view.index,
@@ -158,9 +151,11 @@ def _plan_pass(
                 position,
                 view.direction,
                 X_WC,
-                q_now,
-                reachable=True,
-                motion_s=float(trajectory.duration_s),
+                q_rad,
+                reachable=trajectory is not None,
+                reason=reason,
+                detail=detail,
+                motion_s=motion_s,
             )
         )
     return out, q_now

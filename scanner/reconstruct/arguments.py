@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from scanner.cli.arguments import (
     ConfigDefault,
+    add_command,
+    add_config_file_argument,
     add_config_option,
     add_output_arguments,
     mesh_formats_arg,
@@ -19,12 +21,13 @@ PROCESSING_CONFIG = "scanner.scan.config:ProcessingConfig"
 
 
 def add_reconstruct_parser(sub) -> None:
-    reconstruct = sub.add_parser(
+    reconstruct = add_command(
+        sub,
         "reconstruct",
+        "scanner.reconstruct.command:run_reconstruct_command",
         help="re-run the reconstruction offline on a saved scan directory",
         description="Rebuild the model from saved captures (never modifies them).",
     )
-    reconstruct.set_defaults(run="scanner.reconstruct.command:run_reconstruct_command")
     reconstruct.add_argument(
         "scan_dirs",
         type=path_arg,
@@ -33,10 +36,9 @@ def add_reconstruct_parser(sub) -> None:
         help="scan directories made by `scanner scan`; several are reconstructed in parallel "
         "as Ray tasks, each into its own SCAN_DIR/results[-N]",
     )
-    reconstruct.add_argument(
-        "--config",
-        type=path_arg,
-        help="processing YAML (stereo:, reconstruction:, ...) (default: the scan's own settings)",
+    add_config_file_argument(
+        reconstruct,
+        "processing YAML (stereo:, reconstruction:, ...) (default: the scan's own settings)",
     )
     reconstruct.add_argument(
         "--calibration",
@@ -116,20 +118,17 @@ def _no_decimation(value) -> str:
 
 
 def add_merge_parser(sub) -> None:
-    merge = sub.add_parser(
+    merge = add_command(
+        sub,
         "merge",
+        "scanner.reconstruct.command:run_merge_command",
         help="align and merge scans of one object (e.g. hung differently) into one model",
         description="Align the passes of two or more scan directories (each of one or more "
         "hangings) into the first one's frame, verify every alignment, and build one model. "
         "An alignment that fails verification writes nothing and exits with code 3.",
     )
-    merge.set_defaults(run="scanner.reconstruct.command:run_merge_command")
     merge.add_argument("scan_dirs", type=path_arg, nargs="+", metavar="SCAN_DIR")
-    merge.add_argument(
-        "--config",
-        type=path_arg,
-        help="processing YAML (default: the first scan's settings)",
-    )
+    add_config_file_argument(merge, "processing YAML (default: the first scan's settings)")
     add_output_arguments(
         merge,
         "results folder to create (required, no default)",

@@ -12,7 +12,7 @@ from scanner.reconstruct.stages import (
     RECONSTRUCTION_MARKER,
     ReconstructRun,
     load_processing_config,
-    reconstruct_scans,
+    run_reconstruct,
 )
 from scanner.scan.manifest import open_scan
 
@@ -45,4 +45,4 @@ def run_merge(
             )
     require_replaceable(out, RECONSTRUCTION_MARKER, force, "reconstruction")
     processing = None if config is None else load_processing_config(config)
-    return reconstruct_scans(scans, Path(out), processing, progress=progress)
+    return run_reconstruct(scans, processing, Path(out), progress=progress)

@@ -158,7 +158,7 @@ def _settings(processing: ProcessingConfig, scan: SavedScan, origin: dict[str, s
 
 
 def run_reconstruct(
-    scan: Path | SavedScan,
+    scan: Path | SavedScan | list[SavedScan],
     processing: ProcessingConfig | None = None,
     results_dir: Path | None = None,
     X_FC: np.ndarray | None = None,
@@ -167,29 +167,19 @@ def run_reconstruct(
     progress: bool = False,
     origin: dict[str, str] | None = None,
 ) -> ReconstructRun:
-    """Reconstruct a saved scan (a directory, or one already opened). Defaults: the scan's own
-    processing settings, camera model and X_FC (from its manifest); results in SCAN_DIR/results.
+    """Reconstruct a saved scan (a directory, or one already opened), or merge a list of opened
+    scans into one model: every hanging of every scan aligned into the first one's frame
+    (refused, with nothing written, when an alignment does not verify). Defaults: the (first)
+    scan's own processing settings, camera model and X_FC (from its manifest); results in its
+    SCAN_DIR/results, written as a whole or not at all.
     `streamed`: per-view results computed while the scan ran (used where the settings match);
     `progress`: show the stages on stderr (when it is a terminal); `origin`: where the caller's
     X_FC and processing came from, for the summary (`X_FC_given`, `processing_from`)."""
-    scan = scan if isinstance(scan, SavedScan) else open_scan(scan)
-    out = Path(results_dir) if results_dir else scan.store.results_dir
-    return reconstruct_scans([scan], out, processing, X_FC, stereo, streamed, progress, origin)
-
-
-def reconstruct_scans(
-    scans: list[SavedScan],
-    out: Path,
-    processing: ProcessingConfig | None = None,
-    X_FC: np.ndarray | None = None,
-    stereo: StereoCamera | None = None,
-    streamed: StreamedViews | None = None,
-    progress: bool = False,
-    origin: dict[str, str] | None = None,
-) -> ReconstructRun:
-    """One model from the captures of one or more scans: every hanging of every scan,
-    aligned into the first one's frame (refused, with nothing written, when an alignment does
-    not verify). Results are written to `out` as a whole, or not at all."""
+    if isinstance(scan, list):
+        scans = scan
+    else:
+        scans = [scan if isinstance(scan, SavedScan) else open_scan(scan)]
+    out = Path(results_dir) if results_dir else scans[0].store.results_dir
     t0 = time.perf_counter()
     processing = processing or scans[0].config.processing
     display = _stage_display(scans) if progress else None

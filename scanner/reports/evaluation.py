@@ -100,9 +100,7 @@ def hangings_report(result, views: Gathered, to_first) -> dict:
     return out
 
 
-def evaluate(
-    result: ReconstructionResult, truth, surface, samples: int, truth_samples
-) -> dict:
+def evaluate(result: ReconstructionResult, truth, surface, samples: int, truth_samples) -> dict:
     """Metrics of every surface against the truth (`truth_samples`: from `observed_samples`),
     and the hand-eye error before/after."""
     out: dict = {"surfaces": {}}

@@ -7,6 +7,8 @@ from pathlib import Path
 
 from scanner.cli.arguments import (
     ConfigDefault,
+    add_command,
+    add_config_file_argument,
     add_config_option,
     add_driver_argument,
     add_output_arguments,
@@ -23,13 +25,14 @@ SCAN_CONFIG = "scanner.scan.config:ScanConfig"
 
 
 def add_scan_parser(sub) -> None:
-    scan = sub.add_parser(
+    scan = add_command(
+        sub,
         "scan",
+        "scanner.scan.command:run_scan_command",
         help="scan an object: plan viewpoints, move, capture stereo pairs, reconstruct",
         description="Scan an object in the simulated work cell: viewpoints on a sphere around it, "
         "collision-free motions, stereo captures saved to a scan directory, then reconstruction.",
     )
-    scan.set_defaults(run="scanner.scan.command:run_scan_command")
     add_config_option(
         scan,
         "--object",
@@ -96,10 +99,9 @@ def add_scan_parser(sub) -> None:
         help="simulation with --monitor: a forearm reaches into the cell at these times (s on "
         "the monitor's clock) (default: none)",
     )
-    scan.add_argument(
-        "--config",
-        type=path_arg,
-        help="scan configuration YAML; flags given win over it (default: none, the built-in "
+    add_config_file_argument(
+        scan,
+        "scan configuration YAML; flags given win over it (default: none, the built-in "
         "defaults stated here)",
     )
     scan.add_argument(
@@ -137,8 +139,10 @@ def add_scan_parser(sub) -> None:
 
 
 def add_preview_parser(sub) -> None:
-    preview = sub.add_parser(
+    preview = add_command(
+        sub,
         "preview",
+        "scanner.scan.command:run_preview_command",
         help="render the simulated work cell and one stereo pair to PNG files",
         description="Build the simulated cell with an object, move the arm to one reachable "
         "viewpoint and render an overview and the stereo pair (with lens distortion and noise).",
@@ -155,4 +159,3 @@ def add_preview_parser(sub) -> None:
         help="output folder (default %(default)s)",
     )
     add_seed_argument(preview, default=0)
-    preview.set_defaults(run="scanner.scan.command:run_preview_command")

@@ -1,0 +1,97 @@
+"""The 12-view vase scan (shared with test_reconstruct_scan.py) reconstructed from bad inputs: a
+damaged capture, and a calibration whose mount is 40 mm / 10 deg off. The figures these tests
+check do not depend on the surfaces, so they build one cheap surface (TSDF) or none of the
+registration where that is not what is tested."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import yaml
+
+from reconstruction.pipeline import variant_config
+from scanner.reconstruct.stages import run_reconstruct
+from scanner.scan.captures import CaptureStore
+from scanner.scan.config import ProcessingConfig
+
+pytestmark = pytest.mark.slow
+
+# The registration and the hand-eye correction as configured; the TSDF mesh alone as surface.
+TSDF_ONLY = {
+    "reconstruction": {"surfaces": {"methods": ["tsdf"]}},
+    "primary_surface": "tsdf",
+}
+
+
+@pytest.fixture(scope="module")
+def scan_dir(vase12_scan_dir):
+    return vase12_scan_dir
+
+
+def test_a_damaged_capture_is_skipped_and_reported(scan_dir, tmp_path):
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(scan_dir, copy)
+    (copy / "captures" / "0003" / "right.png").write_bytes(b"\x89PNG\r\n\x1a\n cut short")
+    store = CaptureStore.open(copy)
+    # Which captures are used does not depend on the registration: pose-only poses.
+    base = ProcessingConfig()
+    processing = replace(base, reconstruction=variant_config(base.reconstruction, "pose_only"))
+    run = run_reconstruct(copy, processing, tmp_path / "out")
+    (skipped,) = run.report["captures_skipped"]
+    assert skipped["index"] == 3 and "right.png" in skipped["reason"]
+    assert run.report["captures_used"] == len(store.captured_indices()) - 1
+
+
+def _rough_mount_calibration(scan_dir, path):
+    """The scan's camera with the TRUE X_FC moved 40 mm / 10 deg (a hand-made mount)."""
+    from reconstruction.calibration.file import Calibration, save_calibration
+    from reconstruction.common.transforms import twist_to_pose
+    from reconstruction.evaluation.metrics import handeye_error
+    from scanner.reconstruct.scan_views import load_truth_of
+    from scanner.scan.manifest import open_scan
+
+    scan = open_scan(scan_dir)
+    X_FC_true = load_truth_of(scan_dir)[0].X_FC
+    axis = np.array([0.3, -0.8, 0.5]) / np.linalg.norm([0.3, -0.8, 0.5])
+    shift = np.array([0.6, 0.0, -0.8]) * 0.04
+    X_FC = X_FC_true @ twist_to_pose([*(np.radians(10.0) * axis), *shift])
+    start = handeye_error(X_FC, X_FC_true)
+    assert start["handeye_error_mm"] == pytest.approx(40.0, abs=0.1)
+    save_calibration(Calibration(X_FC, scan.stereo, scan.stereo.left, "test"), path)
+    return path
+
+
+def test_a_rough_mount_is_corrected_or_flagged_from_the_command_line(scan_dir, tmp_path, capsys):
+    from scanner.cli.main import main
+
+    calibration = _rough_mount_calibration(scan_dir, tmp_path / "rough.yaml")
+    (tmp_path / "tsdf.yaml").write_text(yaml.safe_dump(TSDF_ONLY))
+    args = ["reconstruct", str(scan_dir), "--calibration", str(calibration)]
+    wide = tmp_path / "wide"
+    assert main([*args, "--config", str(tmp_path / "tsdf.yaml"), "--out", str(wide)]) == 0
+    printed = capsys.readouterr().out
+    report = json.loads((wide / "report.json").read_text())
+    assert report["handeye_converged"] is True and "WARNING" not in printed
+    assert report["handeye_error_mm"] < 0.5 and report["handeye_error_deg"] < 0.1
+    # Without the coarse stage the correction cannot get there; it must say so and keep the
+    # nominal-pose cloud.
+    config = {
+        **TSDF_ONLY,
+        "reconstruction": {
+            **TSDF_ONLY["reconstruction"],
+            "handeye": {"coarse": {"enabled": False}},
+        },
+    }
+    (tmp_path / "no_coarse.yaml").write_text(yaml.safe_dump(config))
+    out = tmp_path / "narrow"
+    assert main([*args, "--config", str(tmp_path / "no_coarse.yaml"), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    report = json.loads((out / "report.json").read_text())
+    assert report["handeye_error_mm"] > 2.0  # the premise
+    assert report["handeye_converged"] is False and report["handeye_diagnosis"]["failures"]
+    assert "WARNING: the hand-eye correction did not converge" in printed
+    assert "WARNING" in (out / "summary.md").read_text()
+    assert (out / "fused_cloud_nominal.ply").stat().st_size > 0
