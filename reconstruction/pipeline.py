@@ -230,13 +230,31 @@ def reconstruct_views(
     on_stage: StageListener | None = None,
     eyes_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
 ) -> ReconstructionResult:
-    """The whole reconstruction on in-memory views (see the module docstring). `hangings`:
-    the capture indices of each pass of a multi-hanging scan (None: one pass); the passes are
-    aligned into the first one's frame. `filtered`: clouds of views already filtered at the
-    kinematic pose with these settings (the filter stage skips them). `on_stage` hears each
-    stage start and end (a progress display). `eyes_of(index, X_WC)`: a view's camera
-    centres in W (a stereo rig: both eyes, as `coverage_estimate` takes them); given, the
-    coverage is estimated while the meshes are built."""
+    """The whole reconstruction on in-memory views (see the module docstring).
+
+    Args:
+        views: one cloud per capture, in its camera frame C, with the flange pose X_WF.
+        X_FC_nominal: the hand-eye transform the software believes (4x4, metres).
+        config: every stage's settings (filter, ICP, pose graph, hand-eye, hangings, surfaces).
+        remove_points: the caller's filter of points on the robot and cell (robots/ provides
+            one from the Drake geometry; None keeps every point).
+        hangings: the capture indices of each pass of a multi-hanging scan (None: one pass);
+            the passes are aligned into the first one's frame.
+        filtered: clouds of views already filtered at the kinematic pose with these settings
+            (the filter stage skips them).
+        on_stage: hears each stage start and end (a progress display).
+        eyes_of: `eyes_of(index, X_WC)`, a view's camera centres in W (a stereo rig: both
+            eyes, as `coverage_estimate` takes them); given, the coverage is estimated while
+            the meshes are built.
+
+    Returns:
+        The views' poses (kinematic, registered, final), the registration edges, the X_FC used
+        and the hand-eye story, the fused cloud, the meshes by method, the stage times, the
+        skipped views and notes, the hangings' alignments and the coverage estimate.
+
+    Raises:
+        ScannerError: fewer usable views than `config.min_views`, or a hanging whose alignment
+            fails its verification."""
     X_FC_nominal = check_pose(X_FC_nominal, "X_FC_nominal")
     indices = [v.index for v in views]
     if len(set(indices)) != len(indices):

@@ -1,12 +1,11 @@
 """Benchmark: whole-object models from two hangings.
 
-The bunny, teapot and spot from ../shared/data/meshes (0.2 m), seeds 0, 1, 2, each scanned
-with --hangings 2 and the default error model, and one merge of two different objects that
-must be refused. Prints one JSON line: `cases_total`, `aligned` (verified and within 1 mm of
-the truth), the worst alignment errors, completeness, the coverage estimate's error against
-the truth, the seed-0 bunny's report keys, `wrong_object_refused`, `median_case_wall_s` and
-one record per case. `--objects` / `--seeds` run a subset.
-"""
+The bunny, teapot and spot of the benchmark meshes (benchmark_data.py; 0.2 m), seeds 0, 1, 2,
+each scanned with --hangings 2 and the default error model, and one merge of two different
+objects that must be refused. Prints one JSON line: `cases_total`, `aligned` (verified and
+within 1 mm of the truth), the worst alignment errors, completeness, the coverage estimate's
+error against the truth, the seed-0 bunny's report keys, `wrong_object_refused`,
+`median_case_wall_s` and one record per case. `--objects` / `--seeds` run a subset."""
 
 from __future__ import annotations
 
@@ -18,12 +17,13 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmark_data import MESHES, require
+
 from reconstruction.common.errors import RefusedResultError
 from scanner.reconstruct.merge import run_merge
 from scanner.scan.config import ScanConfig, with_overrides
 from scanner.scan.run import run_scan
 
-MESHES = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 FILES = {"bunny": "stanford-bunny.obj", "teapot": "teapot.obj", "spot": "spot.obj"}
 KEYS = (
     "chamfer_mm",
@@ -64,8 +64,7 @@ def main() -> None:
     parser.add_argument("--objects", default="bunny,teapot,spot")
     parser.add_argument("--seeds", default="0,1,2")
     args = parser.parse_args()
-    if not MESHES.is_dir():
-        sys.exit(f"bench_complete: {MESHES} not found (needs ../shared/data)")
+    require(MESHES, "bench_complete")
     objects = args.objects.split(",")
     seeds = [int(s) for s in args.seeds.split(",")]
     with tempfile.TemporaryDirectory() as tmp:

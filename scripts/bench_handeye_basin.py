@@ -20,6 +20,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from benchmark_data import MESHES, require
 from scipy.spatial.transform import Rotation
 
 from reconstruction.evaluation.metrics import handeye_error
@@ -29,7 +30,7 @@ from scanner.scan.config import ProcessingConfig, ScanConfig, with_overrides
 from scanner.scan.manifest import open_scan
 from scanner.scan.run import run_scan
 
-BUNNY = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "stanford-bunny.obj"
+BUNNY = MESHES / "stanford-bunny.obj"
 # (mm, deg): the diagonal and a few off it.
 STARTS = (
     (3, 1),
@@ -87,8 +88,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         scan_dir = args.scan
         if scan_dir is None:
-            if not BUNNY.is_file():
-                sys.exit(f"bench_handeye_basin: {BUNNY} not found (needs ../shared/data)")
+            require(BUNNY, "bench_handeye_basin")
             config = with_overrides(ScanConfig(), object_spec=str(BUNNY), seed=0)
             config = replace(config, reconstruct=False)
             scan_dir = run_scan(config, Path(tmp) / "scan").scan_dir

@@ -17,26 +17,13 @@ import tempfile
 from dataclasses import fields, replace
 from pathlib import Path
 
+from benchmark_data import MESHES, add_scan_options, mesh_scan
+
 from reconstruction.surfaces.config import SurfaceConfig
 from scanner.reconstruct.stages import run_reconstruct
-from scanner.scan.config import ProcessingConfig, ScanConfig, with_overrides
-from scanner.scan.run import run_scan
+from scanner.scan.config import ProcessingConfig
 
-MESHES = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 BUNNY = "stanford-bunny.obj"
-
-
-def _scan(root: Path, views: int) -> Path:
-    scan_dir = root / "bunny"
-    if not (scan_dir / "scan.yaml").is_file():
-        config = replace(
-            with_overrides(
-                ScanConfig(), object_spec=str(MESHES / BUNNY), size_m=0.2, views=views, seed=0
-            ),
-            reconstruct=False,
-        )
-        run_scan(config, scan_dir)
-    return scan_dir
 
 
 def _rbf_overrides(items: list[str]) -> dict:
@@ -57,13 +44,9 @@ def main() -> None:
     parser.add_argument(
         "--scan", type=Path, default=None, help="an existing bunny scan (read only)"
     )
-    parser.add_argument(
-        "--scan-root",
-        type=Path,
-        default=None,
-        help="make the scan here (ROOT/bunny) and reuse it on the next run (default: temporary)",
+    add_scan_options(
+        parser, "make the scan here (ROOT/bunny) and reuse it on the next run (default: temporary)"
     )
-    parser.add_argument("--views", type=int, default=24)
     parser.add_argument(
         "--rbf", action="append", default=[], metavar="FIELD=VALUE", help="e.g. smoothing=2"
     )
@@ -76,7 +59,8 @@ def main() -> None:
     surfaces = replace(base.reconstruction.surfaces, methods=("poisson", "rbf"), **overrides)
     processing = replace(base, reconstruction=replace(base.reconstruction, surfaces=surfaces))
     with tempfile.TemporaryDirectory() as tmp:
-        scan_dir = args.scan or _scan(args.scan_root or Path(tmp) / "scans", args.views)
+        root = args.scan_root or Path(tmp) / "scans"
+        scan_dir = args.scan or mesh_scan(BUNNY, root / "bunny", args.views)
         run = run_reconstruct(scan_dir, processing, Path(tmp) / "results")
     report = run.report
     if "surfaces" not in report:

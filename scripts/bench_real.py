@@ -24,6 +24,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from benchmark_data import REAL, require
 from scipy.spatial.transform import Rotation
 
 from reconstruction.calibration.boards import BoardSpec
@@ -35,7 +36,6 @@ from scanner.calibrate.offline import (
     calibrate_directory,
 )
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 # Open3DV's README: X_FC by OpenCV Tsai (mm, rotation vector).
 OPEN3DV_T_M = np.array([219.96, 68.97, -177.71]) * 1e-3
 OPEN3DV_ROTVEC = np.array([0.1004, -0.0459, 1.5495])
@@ -114,8 +114,7 @@ def main() -> None:
     parser.add_argument("--seeds-json", type=Path, help="a line bench_handeye_seeds.py printed")
     parser.add_argument("--seed-data", type=Path, help="reuse bench_handeye_seeds' captures")
     args = parser.parse_args()
-    if not REAL.is_dir():
-        sys.exit(f"bench_real: {REAL} not found (needs the benchmark data folder)")
+    require(REAL, "bench_real")
     with tempfile.TemporaryDirectory() as tmp:
         result = {
             "opencv_sample": opencv_sample(Path(tmp) / "sample"),

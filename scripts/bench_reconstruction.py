@@ -1,4 +1,4 @@
-"""Benchmark: reconstruct 24-view simulated scans of meshes from ../shared/data/meshes.
+"""Benchmark: reconstruct 24-view simulated scans of the benchmark meshes (benchmark_data.py).
 
 Scans (or reuses, with --scan-root) each object (largest extent 0.2 m, default error model:
 3 mm / 1 deg hand-eye error) and prints one JSON line. The Stanford bunny is reconstructed three
@@ -19,15 +19,15 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
+from benchmark_data import MESHES, add_scan_options, mesh_scan, require
+
 from reconstruction.common.stage_timer import cpu_seconds
 from reconstruction.evaluation.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
 from reconstruction.pipeline import VARIANTS, variant_config
 from scanner.reconstruct.stages import run_reconstruct
 from scanner.scan.captures import CaptureStore
-from scanner.scan.config import ProcessingConfig, ScanConfig, with_overrides
-from scanner.scan.run import run_scan
+from scanner.scan.config import ProcessingConfig
 
-MESHES = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 OBJECTS = {
     "bunny": "stanford-bunny.obj",
     "spot": "spot.obj",
@@ -35,23 +35,6 @@ OBJECTS = {
     "teapot": "teapot.obj",
 }
 KEYS = (*SURFACE_METRIC_KEYS, *HANDEYE_ERROR_KEYS)
-
-
-def _scan(name: str, root: Path, views: int) -> Path:
-    scan_dir = root / name
-    if not (scan_dir / "scan.yaml").is_file():
-        config = replace(
-            with_overrides(
-                ScanConfig(),
-                object_spec=str(MESHES / OBJECTS[name]),
-                size_m=0.2,
-                views=views,
-                seed=0,
-            ),
-            reconstruct=False,
-        )
-        run_scan(config, scan_dir)
-    return scan_dir
 
 
 def _variants(scan_dir: Path, names, out: Path) -> dict:
@@ -77,13 +60,9 @@ def _variants(scan_dir: Path, names, out: Path) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument(
-        "--scan-root",
-        type=Path,
-        default=None,
-        help="keep the scans here (one folder per object) and reuse them on the next run",
+    add_scan_options(
+        parser, "keep the scans here (one folder per object) and reuse them on the next run"
     )
-    parser.add_argument("--views", type=int, default=24)
     parser.add_argument(
         "--objects",
         default="bunny",
@@ -95,13 +74,12 @@ def main() -> None:
     unknown = [n for n in names if n not in OBJECTS]
     if unknown:
         sys.exit(f"bench_reconstruction: unknown object(s) {unknown}; valid: {list(OBJECTS)}")
-    if not MESHES.is_dir():
-        sys.exit(f"bench_reconstruction: {MESHES} not found (needs ../shared/data)")
+    require(MESHES, "bench_reconstruction")
     out: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
         root = args.scan_root or Path(tmp) / "scans"
         for name in names:
-            scan_dir = _scan(name, root, args.views)
+            scan_dir = mesh_scan(OBJECTS[name], root / name, args.views)
             variants = list(VARIANTS) if name == "bunny" else ["corrected"]
             result = _variants(scan_dir, variants, Path(tmp) / f"results-{name}")
             if name == "bunny":

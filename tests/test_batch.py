@@ -15,12 +15,19 @@ from scanner.reconstruct.batch import check_ray_address, run_batch
 from scanner.reconstruct.command import ReconstructOptions, reconstruct_one
 from scanner.scan.config import load_scan_config
 from scanner.scan.run import run_scan
-from tests.tiny_scan import TINY_SCAN
+from tests.tiny_scan import TINY_PROCESSING, TINY_SCAN
 
 TINY = {**TINY_SCAN, "reconstruct": False}
 # A batch must give what one-by-one runs give, whatever the settings: pose-only registration
 # (the ICP and the hand-eye correction have tests of their own) keeps the four runs short.
-POSE_ONLY = {"reconstruction": {"icp": {"enabled": False}, "handeye": {"enabled": False}}}
+POSE_ONLY = {
+    **TINY_PROCESSING,
+    "reconstruction": {
+        **TINY_PROCESSING["reconstruction"],
+        "icp": {"enabled": False},
+        "handeye": {"enabled": False},
+    },
+}
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 from reconstruction.common.errors import ScannerError
-from reconstruction.common.typed_yaml import from_dict
 from scanner.cli.main import main
+from scanner.configs.typed_yaml import from_dict
 from scanner.monitor.cell_monitor import MonitorStoppedError
 from scanner.scan.config import ScanConfig, with_overrides
 from scanner.scan.run import run_scan

@@ -36,9 +36,12 @@ def test_a_damaged_capture_is_skipped_and_reported(scan_dir, tmp_path):
     shutil.copytree(scan_dir, copy)
     (copy / "captures" / "0003" / "right.png").write_bytes(b"\x89PNG\r\n\x1a\n cut short")
     store = CaptureStore.open(copy)
-    # Which captures are used does not depend on the registration: pose-only poses.
+    # Which captures are used depends on neither the registration nor the surfaces: pose-only
+    # poses and the TSDF mesh alone.
     base = ProcessingConfig()
-    processing = replace(base, reconstruction=variant_config(base.reconstruction, "pose_only"))
+    tsdf_only = replace(base.reconstruction.surfaces, methods=("tsdf",))
+    reconstruction = replace(variant_config(base.reconstruction, "pose_only"), surfaces=tsdf_only)
+    processing = replace(base, reconstruction=reconstruction, primary_surface="tsdf")
     run = run_reconstruct(copy, processing, tmp_path / "out")
     (skipped,) = run.report["captures_skipped"]
     assert skipped["index"] == 3 and "right.png" in skipped["reason"]

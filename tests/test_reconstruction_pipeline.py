@@ -215,7 +215,7 @@ def test_final_pose_graph_polishes_the_corrected_poses(scan):
 def test_config_round_trips_through_the_typed_yaml_loader():
     # The scan directory stores the configuration as YAML; every field must be a type the
     # project's loader knows (numbers, strings, booleans, tuples, nested dataclasses).
-    from reconstruction.common.typed_yaml import from_dict, to_dict
+    from scanner.configs.typed_yaml import from_dict, to_dict
 
     config = replace(CONFIG, final_pose_graph=True)
     data = to_dict(config)

@@ -1,3 +1,2 @@
-"""Basics every layer shares: user-facing errors, config checks, rigid transforms, YAML
-files (plain and typed), stage timing, robust losses. Pure Python and numpy; imports nothing
-of the product."""
+"""Basics every layer shares: user-facing errors, config checks, rigid transforms, YAML files,
+stage timing, robust losses. Pure Python and numpy; imports nothing of the product."""

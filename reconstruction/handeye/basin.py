@@ -20,9 +20,14 @@ import numpy as np
 
 from reconstruction.common.checks import require_count, require_positive
 from reconstruction.common.errors import ScannerError
-from reconstruction.common.robust_loss import check_loss
 from reconstruction.common.transforms import pose_difference, twist_to_pose
-from reconstruction.handeye.refine import CloudFit, HandEyeRefinement, RefineLevel, refine_on_clouds
+from reconstruction.handeye.refine import (
+    CloudFit,
+    HandEyeRefinement,
+    RefineLevel,
+    check_fit_settings,
+    refine_on_clouds,
+)
 from reconstruction.registration.filtering import FilteredCloud
 
 
@@ -59,9 +64,7 @@ class CoarseHandEyeConfig:
     restart_angle_rad: float = math.radians(10.0)
 
     def __post_init__(self) -> None:
-        check_loss(self.loss, "handeye.coarse.loss")
-        if not self.levels:
-            raise ScannerError("handeye.coarse.levels: at least one level is needed")
+        check_fit_settings(self.loss, "handeye.coarse.loss", self.levels, "handeye.coarse.levels")
         require_positive(
             "handeye.coarse",
             self,

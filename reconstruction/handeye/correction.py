@@ -25,12 +25,16 @@ import numpy as np
 
 from reconstruction.calibration.hand_eye import HAND_EYE_METHODS, HandEyeMethodError, solve_hand_eye
 from reconstruction.common.checks import require_choice, require_count, require_positive
-from reconstruction.common.errors import ScannerError
-from reconstruction.common.robust_loss import check_loss
 from reconstruction.common.transforms import invert, mean_pose, pose_difference
 from reconstruction.handeye.basin import CoarseHandEyeConfig
 from reconstruction.handeye.diagnosis import ConvergenceLimits, HandEyeDiagnosis, diagnose
-from reconstruction.handeye.refine import CloudFit, HandEyeRefinement, RefineLevel, refine_on_clouds
+from reconstruction.handeye.refine import (
+    CloudFit,
+    HandEyeRefinement,
+    RefineLevel,
+    check_fit_settings,
+    refine_on_clouds,
+)
 from reconstruction.registration.filtering import FilteredCloud
 
 
@@ -78,9 +82,9 @@ class HandEyeConfig:
 
     def __post_init__(self) -> None:
         require_choice("handeye", "axxb_method", self.axxb_method, HAND_EYE_METHODS)
-        check_loss(self.refine_loss, "handeye.refine_loss")
-        if not self.refine_levels:
-            raise ScannerError("handeye.refine_levels: at least one level is needed")
+        check_fit_settings(
+            self.refine_loss, "handeye.refine_loss", self.refine_levels, "handeye.refine_levels"
+        )
         require_positive(
             "handeye",
             self,
@@ -211,7 +215,23 @@ def correct_handeye(
     joint refinement from X_FC_start (the coarse stage's or an earlier round's answer, which
     the registration started from), else from the configured method's answer (or the nominal
     X_FC when that answer is implausible), each step checked against the sanity limits; then
-    the diagnosis (`coarse`: the coarse stage's fit, reported)."""
+    the diagnosis.
+
+    Args:
+        clouds: the views' filtered clouds, in their camera frames C.
+        X_WF: each view's flange pose from the robot's joints (4x4, metres).
+        X_WC_refined: each view's camera pose after the pose graph (None without ICP: then
+            only the joint refinement on the clouds runs).
+        pairs: the overlapping view pairs (indices into `clouds`) the refinement matches.
+        X_FC_nominal: the hand-eye transform the scan started from.
+        config: solver, refinement, sanity limits and convergence limits.
+        coarse: the coarse stage's fit, reported with the result.
+        X_FC_start: where the registration started from (None: the nominal X_FC).
+
+    Returns:
+        The X_FC to use downstream, its change from the nominal one, every AX = XB answer, the
+        refinement, which source won, notes on what was not trusted, and the diagnosis (did it
+        converge, judged without truth)."""
     X_FC_nominal = np.asarray(X_FC_nominal, float)
     notes: list[str] = []
     axxb: dict[str, AxxbSolution] = {}

@@ -23,6 +23,14 @@ from reconstruction.common.transforms import invert, rotate_vectors, transform_p
 from reconstruction.registration.filtering import FilteredCloud, o3d_cloud
 
 
+def check_fit_settings(loss: str, loss_field: str, levels: tuple, levels_field: str) -> None:
+    """What every joint X_FC fit needs (the coarse and the fine configuration name these
+    fields differently): a known robust loss and at least one level."""
+    check_loss(loss, loss_field)
+    if not levels:
+        raise ScannerError(f"{levels_field}: at least one level is needed")
+
+
 @dataclass(frozen=True)
 class RefineLevel:
     """One stage of the joint refinement: correspondence gate and iteration cap."""
@@ -53,9 +61,7 @@ class CloudFit:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        check_loss(self.loss, "handeye loss")
-        if not self.levels:
-            raise ScannerError("handeye levels: at least one level is needed")
+        check_fit_settings(self.loss, "handeye loss", self.levels, "handeye levels")
 
 
 @dataclass(frozen=True, eq=False)

@@ -12,7 +12,6 @@ from reconstruction.calibration.eye_to_hand import MarkerDetectionSettings
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.checks import check_fields, integer, positive
 from reconstruction.common.errors import ScannerError
-from reconstruction.common.typed_yaml import load_yaml_file
 from reconstruction.stereo.camera_model import StereoDesign
 from robots.models.calibration_board import BoardPlacement
 from robots.models.workcell import WorkcellConfig
@@ -20,6 +19,7 @@ from robots.simulation.blinking_marker import MarkerConfig
 from robots.simulation.static_camera import StaticCameraConfig
 from robots.simulation.truth import MAX_SEED, ErrorModel
 from scanner.calibrate.stations import StationConfig
+from scanner.configs.typed_yaml import load_yaml_file
 
 
 def _default_board() -> BoardSpec:

@@ -14,7 +14,6 @@ import numpy as np
 
 from planners.planner import PlanFailure, Planner
 from reconstruction.common.errors import ScannerError
-from reconstruction.common.typed_yaml import to_dict
 from reconstruction.stereo.camera_model import (
     StereoCamera,
     stereo_camera_to_dict,
@@ -34,6 +33,7 @@ from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.offline import OfflineOptions, calibrate_directory
 from scanner.calibrate.solve import CalibrationRun
 from scanner.calibrate.stations import plan_stations
+from scanner.configs.typed_yaml import to_dict
 from scanner.scan.captures import Capture, CaptureStore, atomic_write_text, require_same_settings
 
 # Moves the arm to a configuration; False when it could not (the station is skipped).

@@ -27,7 +27,6 @@ from reconstruction.calibration.pose_files import (
 )
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.errors import RefusedResultError, ScannerError
-from reconstruction.common.typed_yaml import from_dict
 from reconstruction.common.yaml_files import read_yaml
 from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera, stereo_camera_from_dict
 from robots.simulation.truth import load_truth
@@ -35,6 +34,7 @@ from scanner.calibrate.cameras_only import CamerasRun, calibrate_cameras, requir
 from scanner.calibrate.corners import ImageLoader, rank_pictures
 from scanner.calibrate.report import CALIBRATION_FILE, build_report, truth_errors, write_results
 from scanner.calibrate.solve import CalibrationRun, Solution, solve
+from scanner.configs.typed_yaml import from_dict
 from scanner.reconstruct.results_folder import free_results_dir, require_replaceable
 from scanner.scan.captures import CaptureStore
 

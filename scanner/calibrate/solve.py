@@ -22,8 +22,8 @@ from reconstruction.calibration.intrinsics import (
 from reconstruction.calibration.observations import PoseObservation
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.errors import ScannerError
-from reconstruction.common.typed_yaml import to_dict
 from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera
+from scanner.configs.typed_yaml import to_dict
 
 
 def no_board_anywhere(board: BoardSpec, observations) -> str:

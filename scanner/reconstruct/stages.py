@@ -26,13 +26,13 @@ import numpy as np
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.stage_timer import StageTimer
-from reconstruction.common.typed_yaml import load_yaml_file, to_dict
 from reconstruction.common.yaml_files import yaml_text
 from reconstruction.outputs import export_files, save_outputs, summary
 from reconstruction.pipeline import ReconstructionResult, reconstruct_views
 from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.surfaces.export import export_record, prepare_exports
 from reconstruction.surfaces.topology import mesh_quality
+from scanner.configs.typed_yaml import load_yaml_file, to_dict
 from scanner.reconstruct.results_folder import free_results_dir, holds_result, staged_folder
 from scanner.reconstruct.scan_views import gather_views, with_roi_centre
 from scanner.reports.evaluation import (

@@ -12,7 +12,6 @@ from pathlib import Path
 from planners.planner import PlannerConfig
 from reconstruction.common.checks import check_fields, integer, non_negative, positive
 from reconstruction.common.errors import ScannerError
-from reconstruction.common.typed_yaml import from_dict, load_yaml_file, to_dict
 from reconstruction.common.yaml_files import read_yaml
 from reconstruction.pipeline import ReconstructionConfig
 from reconstruction.stereo.camera_model import StereoDesign
@@ -22,6 +21,7 @@ from reconstruction.surfaces.meshes import MESH_SUFFIXES
 from robots.models.workcell import WorkcellConfig
 from robots.simulation.truth import ErrorModel
 from scanner.cli.arguments import for_flag
+from scanner.configs.typed_yaml import from_dict, load_yaml_file, to_dict
 from scanner.monitor.cell_monitor import MonitorSettings
 from scanner.scan.viewpoints import ViewpointConfig
 

@@ -104,14 +104,16 @@ def new_scan_views(config: ScanConfig, world: ScanWorld) -> tuple[ViewPlan, list
 
 def _start_new(
     config: ScanConfig, out_dir: Path | None, force: bool, world: ScanWorld
-) -> tuple[CaptureStore, list[PlannedView]]:
-    """Views around the scan centre, then the scan directory with its manifest (and truth)."""
+) -> tuple[CaptureStore, list[PlannedView], tuple[tuple[int, ...], ...]]:
+    """Views around the scan centre, then the scan directory with its manifest (and truth);
+    also which views belong to each hanging (view k of hanging p is number p * count + k)."""
     plan, views = new_scan_views(config, world)
     count = len(plan.views)
+    hangings = tuple(tuple(p * count + v.index for v in plan.views) for p in range(config.hangings))
     plan_info = {
         "reachable_fraction": plan.reachable_fraction,
         "dropped_views": [{"direction": d.direction, "reason": d.reason} for d in plan.dropped],
-        "hangings": [[p * count + v.index for v in plan.views] for p in range(config.hangings)],
+        "hangings": [list(h) for h in hangings],
         "reachable_directions": plan.reachable_directions.tolist(),
         "hanging": 0,
     }
@@ -120,7 +122,7 @@ def _start_new(
     if world.sim is not None:
         intruders = intruders_truth(config.monitor) if config.monitor.enabled else []
         _write_truth(store, world.sim, config.hangings, intruders)
-    return store, views
+    return store, views, hangings
 
 
 def _live_view(world: ScanWorld, meshcat) -> object | None:
@@ -173,10 +175,27 @@ def run_scan(
     meshcat: bool = False,
     show_stages: bool = False,
 ) -> ScanResult:
-    """A new scan into `out_dir`, or continue the scan in `resume` (then `config` must be None
-    or equal to the saved one). A resumed scan whose captures are complete is only
-    reconstructed; a complete scan is refused (nothing is changed). `show_stages`: the
-    reconstruction's stages on stderr (when it is a terminal)."""
+    """A new scan into `out_dir`, or continue the scan in `resume`.
+
+    Args:
+        config: the whole scan configuration (None: the defaults, or the saved one on resume;
+            given with `resume`, it must equal the saved one).
+        out_dir: the scan directory to create (None: `scans/OBJECT-TIMESTAMP`).
+        resume: an interrupted scan to continue: its missing views are captured; a scan whose
+            captures are complete is only reconstructed; a complete scan is refused (nothing is
+            changed).
+        force: replace an existing scan directory at `out_dir`.
+        progress: `progress(captured, total)` after each view.
+        meshcat: show the arm, its paths and the growing cloud in Meshcat.
+        show_stages: the reconstruction's stages on stderr (when it is a terminal).
+
+    Returns:
+        The scan directory and its report (`results/report.json`: the scan's and, when it
+        reconstructed, the reconstruction's figures).
+
+    Raises:
+        ScannerError: bad configuration or files (exit 2); the arm is never moved then.
+        StorageError: a write failed; every capture so far is kept and the scan resumable."""
     saved = _open_resumed(resume, config) if resume is not None else None
     if saved is not None and saved.manifest.get("status") == "captured":
         return _reconstruct_captured(saved, show_stages)
@@ -190,8 +209,7 @@ def run_scan(
         live = _live_view(world, viewer)
     if saved is None:
         with timer("viewpoints"):
-            store, views = _start_new(config, out_dir, force, world)
-        hangings = _passes(views, config.hangings)
+            store, views, hangings = _start_new(config, out_dir, force, world)
     else:
         store, views, hangings = saved.store, list(saved.views), saved.hangings
         store.update_manifest(status="running")
@@ -224,13 +242,6 @@ def run_scan(
         store.update_manifest(status="complete")
         _write_scan_report(store, report())
     return ScanResult(store.root, _read_report(store))
-
-
-def _passes(views: list[PlannedView], hangings: int) -> tuple[tuple[int, ...], ...]:
-    count = len(views) // hangings
-    return tuple(
-        tuple(v.index for v in views[p * count : (p + 1) * count]) for p in range(hangings)
-    )
 
 
 def _read_report(store: CaptureStore) -> dict:

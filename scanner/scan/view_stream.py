@@ -21,12 +21,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
-from reconstruction.common.typed_yaml import to_dict
 from reconstruction.pipeline import VIEW_THREADS
 from reconstruction.registration.filtering import FilteredCloud, filter_view
 from reconstruction.registration.views import ViewCloud
 from reconstruction.stereo.camera_model import stereo_camera_to_dict
 from reconstruction.stereo.rectification import compute_rectification
+from scanner.configs.typed_yaml import to_dict
 from scanner.reconstruct.scan_views import geometry_filter, stereo_view, with_roi_centre
 from scanner.scan.captures import Capture
 from scanner.scan.manifest import SavedScan
