@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from reconstruction.common.errors import ScannerError
-from scanner.cli.main import main
+from scanner.commands.main import main
 from scanner.reconstruct.batch import check_ray_address, run_batch
 from scanner.reconstruct.command import ReconstructOptions, reconstruct_one
 from scanner.scan.config import load_scan_config

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from reconstruction.calibration.file import load_calibration
-from scanner.cli.main import main
+from scanner.commands.main import main
 from tests.conftest import shared_data
 
 SAMPLE = "real/stereo_calibration_opencv_sample"

@@ -17,7 +17,7 @@ from reconstruction.calibration.file import Calibration, load_calibration, save_
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import invert, make_pose, rotation_about, transform_points
 from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera, default_stereo_camera
-from scanner.cli.main import main
+from scanner.commands.main import main
 
 # Round trips through rectification matrices (ROS) lose a few ulps of the rotation; 1e-12 rad
 # and 1e-12 m are far below anything a calibration resolves (~1e-5 rad, ~1e-5 m).

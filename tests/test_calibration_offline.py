@@ -47,7 +47,7 @@ def _options(root):
 
 def _run(*args):
     return subprocess.run(
-        [sys.executable, "-m", "scanner.cli", "calibrate", *args],
+        [sys.executable, "-m", "scanner", "calibrate", *args],
         capture_output=True,
         text=True,
         timeout=300,

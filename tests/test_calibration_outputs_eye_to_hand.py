@@ -15,7 +15,7 @@ from reconstruction.common.transforms import pose_difference
 from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.eye_to_hand import run_eye_to_hand
 from scanner.calibrate.eye_to_hand_store import MANIFEST, WINDOW_HALF_PX
-from scanner.cli.main import main
+from scanner.commands.main import main
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import cv2
 import pytest
 
 from reconstruction.calibration.boards import BoardSpec
-from scanner.cli.main import main
+from scanner.commands.main import main
 from tests.board_views import warped_board
 
 POSE = "1 0 0 0.5\n0 1 0 0\n0 0 1 0.5\n0 0 0 1\n"  # matrix layout, metres

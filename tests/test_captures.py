@@ -80,3 +80,13 @@ def test_damaged_captures_are_named(tmp_path):
     with pytest.raises(ScannerError, match="q_rad must be 6 finite"):
         store.read_capture(1)
     assert store.read_capture(2).pose_index == 2
+
+
+def test_the_format_names_written_stay_those_earlier_versions_wrote(tmp_path):
+    """Scan directories written by earlier versions carry these names, and opening checks them:
+    renaming a format (a module moved, say) would make every saved scan unreadable."""
+    store = CaptureStore.create(tmp_path / "scan", {})
+    store.write_capture(_capture(0))
+    assert store.read_manifest()["schema"] == "scanner.scan/1"
+    capture_yaml = (tmp_path / "scan" / "captures" / "0000" / "capture.yaml").read_text()
+    assert "schema: scanner.capture/1" in capture_yaml

@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from reconstruction.common.errors import ScannerError
-from scanner.cli.main import main
+from scanner.commands.main import main
 from scanner.configs.typed_yaml import from_dict
 from scanner.monitor.cell_monitor import MonitorStoppedError
 from scanner.scan.config import ScanConfig, with_overrides

@@ -5,12 +5,12 @@ import sys
 
 import pytest
 
-from scanner.cli.main import main
+from scanner.commands.main import main
 
 
 def _run(*args):
     return subprocess.run(
-        [sys.executable, "-m", "scanner.cli", *args], capture_output=True, text=True, timeout=300
+        [sys.executable, "-m", "scanner", *args], capture_output=True, text=True, timeout=300
     )
 
 
@@ -104,7 +104,7 @@ def test_version_is_the_installed_package_version():
 
 
 def test_seed_and_preview_help_state_their_defaults():
-    from scanner.cli.main import build_parser
+    from scanner.commands.main import build_parser
 
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")

@@ -15,8 +15,8 @@ import pytest
 from reconstruction.calibration.pose_files import PoseFormat
 from reconstruction.common.errors import ScannerError
 from scanner.calibrate.config import CalibrateConfig
-from scanner.cli.arguments import ScannerArgumentParser
-from scanner.cli.main import build_parser, main
+from scanner.commands.arguments import ScannerArgumentParser
+from scanner.commands.main import build_parser, main
 from scanner.scan.config import ProcessingConfig, ScanConfig, load_scan_config
 
 
@@ -112,7 +112,7 @@ def test_building_the_parser_leaves_the_configurations_unimported():
     # The configuration modules import Drake and Open3D; --version and usage errors should not
     # wait for them, so help defaults are read only when help is printed.
     code = (
-        "import sys; from scanner.cli.main import build_parser; build_parser(); "
+        "import sys; from scanner.commands.main import build_parser; build_parser(); "
         "heavy = ('pydrake', 'scanner.scan.config', 'scanner.calibrate.config', "
         "'robots.simulation.truth'); "
         "print([m for m in heavy if m in sys.modules])"
@@ -217,7 +217,7 @@ def test_bad_formats_name_the_option(tmp_path, capsys):
 
 def test_usage_error_is_one_line_naming_the_flag():
     r = subprocess.run(
-        [sys.executable, "-m", "scanner.cli", "scan", "--size", "-1"],
+        [sys.executable, "-m", "scanner", "scan", "--size", "-1"],
         capture_output=True,
         text=True,
         timeout=120,

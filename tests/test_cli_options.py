@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from reconstruction.calibration import exchange
 from reconstruction.calibration.file import Calibration, save_calibration
-from scanner.cli.main import build_parser, main
+from scanner.commands.main import build_parser, main
 from scanner.scan.captures import CaptureStore
 from scanner.scan.config import ScanConfig
 from scanner.scan.manifest import new_manifest

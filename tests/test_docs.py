@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from scanner.cli.main import build_parser, main
+from scanner.commands.main import build_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -167,7 +167,7 @@ def test_guide_command_uses_only_options_its_help_lists(command):
 def _run(command: str) -> subprocess.CompletedProcess:
     argv = command.split()[1:]
     return subprocess.run(
-        [sys.executable, "-m", "scanner.cli", *argv],
+        [sys.executable, "-m", "scanner", *argv],
         capture_output=True,
         text=True,
         timeout=120,

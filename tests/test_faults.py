@@ -25,7 +25,7 @@ from tests.tiny_scan import TINY_SCAN
 
 
 def _cli(*args) -> list[str]:
-    return [sys.executable, "-m", "scanner.cli", *args]
+    return [sys.executable, "-m", "scanner", *args]
 
 
 def _wait_for(condition, proc: subprocess.Popen, timeout_s: float = 300) -> bool:

@@ -265,7 +265,7 @@ def two_hangings(tmp_path_factory):
     path = tmp / "small.yaml"
     path.write_text(yaml.safe_dump({**SMALL, "object": bunny, "hangings": 2}))
     out = tmp / "b2"
-    cli = [sys.executable, "-m", "scanner.cli", "scan", "--config", str(path), "--out", str(out)]
+    cli = [sys.executable, "-m", "scanner", "scan", "--config", str(path), "--out", str(out)]
     proc = subprocess.Popen(cli, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline and proc.poll() is None and _captures(out) < 15:
@@ -277,7 +277,7 @@ def two_hangings(tmp_path_factory):
         "manifest": yaml.safe_load((out / "scan.yaml").read_text()),
     }
     r = subprocess.run(
-        [sys.executable, "-m", "scanner.cli", "scan", "--resume", str(out)],
+        [sys.executable, "-m", "scanner", "scan", "--resume", str(out)],
         capture_output=True,
         text=True,
         timeout=900,
@@ -336,7 +336,7 @@ def test_merging_scans_of_different_objects_is_refused(tmp_path):
         path.write_text(yaml.safe_dump({**TINY, "object": name}))
         scans.append(run_scan(load_scan_config(path), tmp_path / name).scan_dir)
     out = tmp_path / "merged"
-    cli = [sys.executable, "-m", "scanner.cli", "merge", *map(str, scans), "--out", str(out)]
+    cli = [sys.executable, "-m", "scanner", "merge", *map(str, scans), "--out", str(out)]
     r = subprocess.run(cli, capture_output=True, text=True, timeout=900)
     assert r.returncode == 3, r.stderr
     assert "could not be aligned" in r.stderr and "no model written" in r.stderr

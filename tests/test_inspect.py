@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from reconstruction.common.transforms import pose_difference
 from reconstruction.evaluation.metrics import TriangleSurface
 from reconstruction.evaluation.reference_alignment import align_reference, reference_unit
-from scanner.cli.main import main
+from scanner.commands.main import main
 
 
 def _part() -> o3d.geometry.TriangleMesh:

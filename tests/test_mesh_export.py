@@ -239,7 +239,7 @@ def tiny_scan_dir(tiny_scan) -> Path:
 
 
 def test_reconstruct_writes_mm_object_frame_decimated_meshes(tiny_scan_dir, tmp_path, capsys):
-    from scanner.cli.main import main
+    from scanner.commands.main import main
 
     out = tmp_path / "rec"
     argv = ["reconstruct", str(tiny_scan_dir), "--out", str(out), "--formats", "ply,stl"]

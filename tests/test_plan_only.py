@@ -13,7 +13,7 @@ import yaml
 
 from planners.ik import rig_centre_offset
 from robots.models.workcell import DEFAULT_CELL_BOXES
-from scanner.cli.main import main
+from scanner.commands.main import main
 from scanner.plan_only.plan import PICTURE_FILE, PLAN_FILE, plan_scan, run_plan_only
 from scanner.scan.captures import CaptureStore
 from scanner.scan.config import scan_config_from_dict

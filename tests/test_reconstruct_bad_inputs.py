@@ -68,7 +68,7 @@ def _rough_mount_calibration(scan_dir, path):
 
 
 def test_a_rough_mount_is_corrected_or_flagged_from_the_command_line(scan_dir, tmp_path, capsys):
-    from scanner.cli.main import main
+    from scanner.commands.main import main
 
     calibration = _rough_mount_calibration(scan_dir, tmp_path / "rough.yaml")
     (tmp_path / "tsdf.yaml").write_text(yaml.safe_dump(TSDF_ONLY))

@@ -158,7 +158,7 @@ def test_per_view_residuals_show_the_mount_error_before_and_little_after(runs):
 
 
 def test_inspecting_against_the_true_mesh_reproduces_the_report(runs, scan_dir, tmp_path):
-    from scanner.cli.main import main
+    from scanner.commands.main import main
 
     run = runs["corrected"]
     report = run.report

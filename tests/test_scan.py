@@ -47,8 +47,8 @@ def test_tiny_scan_captures_every_view(tiny_scan):
 
 
 def test_the_scan_prints_its_figures_with_verdicts_and_where_the_summary_is(tiny_scan):
+    from scanner.commands.scan import scan_result_lines
     from scanner.reports.judgement import FIGURES
-    from scanner.scan.command import scan_result_lines
 
     lines = scan_result_lines(tiny_scan)
     r = tiny_scan.report
@@ -81,7 +81,7 @@ def _captures(scan_dir: Path) -> list[int]:
 
 
 def _scanner(*args, env=None):
-    return [sys.executable, "-m", "scanner.cli", "scan", *args]
+    return [sys.executable, "-m", "scanner", "scan", *args]
 
 
 def _start_six_view_scan(tiny_config_file, out: Path, output) -> subprocess.Popen:
@@ -152,7 +152,7 @@ def test_offline_reconstruct_never_replaces_an_earlier_reconstruction(tiny_scan,
     scan_dir = tmp_path / "scan"
     shutil.copytree(tiny_scan.scan_dir, scan_dir)
     first = (scan_dir / "results" / "mesh_poisson.ply").read_bytes()
-    cli = [sys.executable, "-m", "scanner.cli", "reconstruct", str(scan_dir), "--no-icp"]
+    cli = [sys.executable, "-m", "scanner", "reconstruct", str(scan_dir), "--no-icp"]
     r = subprocess.run(cli, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     second = scan_dir / "results-2"

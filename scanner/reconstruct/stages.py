@@ -33,14 +33,14 @@ from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.surfaces.export import export_record, prepare_exports
 from reconstruction.surfaces.topology import mesh_quality
 from scanner.configs.typed_yaml import load_yaml_file, to_dict
-from scanner.reconstruct.results_folder import free_results_dir, holds_result, staged_folder
-from scanner.reconstruct.scan_views import gather_views, with_roi_centre
-from scanner.reports.evaluation import (
+from scanner.reconstruct.evaluation import (
     hangings_report,
     observed_samples,
     to_first_hanging,
     truth_metrics,
 )
+from scanner.reconstruct.results_folder import free_results_dir, holds_result, staged_folder
+from scanner.reconstruct.scan_views import gather_views, with_roi_centre
 from scanner.scan.captures import atomic_write_text
 from scanner.scan.config import ProcessingConfig
 from scanner.scan.manifest import SavedScan, open_scan

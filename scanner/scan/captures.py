@@ -28,7 +28,7 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.common.yaml_files import read_yaml, yaml_text
 from scanner.reconstruct.results_folder import storage_error
 
-SCAN_SCHEMA = "scanner.scan.run/1"
+SCAN_SCHEMA = "scanner.scan/1"
 CAPTURE_SCHEMA = "scanner.capture/1"
 MANIFEST = "scan.yaml"
 CAPTURES = "captures"

@@ -20,7 +20,7 @@ from reconstruction.surfaces.export import MeshExportConfig
 from reconstruction.surfaces.meshes import MESH_SUFFIXES
 from robots.models.workcell import WorkcellConfig
 from robots.simulation.truth import ErrorModel
-from scanner.cli.arguments import for_flag
+from scanner.configs.flags import for_flag
 from scanner.configs.typed_yaml import from_dict, load_yaml_file, to_dict
 from scanner.monitor.cell_monitor import MonitorSettings
 from scanner.scan.viewpoints import ViewpointConfig

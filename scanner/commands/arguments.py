@@ -9,12 +9,9 @@ import argparse
 import dataclasses
 import importlib
 import math
-import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NoReturn
-
-from reconstruction.common.errors import ScannerError
 
 
 class ScannerArgumentParser(argparse.ArgumentParser):
@@ -67,7 +64,7 @@ class ConfigDefault:
 
 def add_command(sub, name: str, run: str, help: str, description: str) -> argparse.ArgumentParser:
     """The parser of subcommand `name` in `sub` (the subparsers), with its runner named as
-    'module:function': scanner.cli.main imports the runner only when the command runs, so that
+    'module:function': scanner.commands.main imports the runner only when the command runs, so that
     building the parser for every command stays light."""
     parser = sub.add_parser(name, help=help, description=description)
     parser.set_defaults(run=run)
@@ -161,20 +158,6 @@ def show_formats(suffixes: tuple[str, ...]) -> str:
 
 # A configuration check's message starts with the field's key path ("views.count: expected
 # ..."); the command line names the flag instead.
-_KEY_PATH = re.compile(r"[a-z_][a-z0-9_]*(?:\.[a-z_][a-z0-9_]*)*: ")
-
-
-def for_flag(flag: str, apply: Callable):
-    """`apply()` (a configuration change that validates itself), its ScannerError told in terms
-    of the command-line flag that asked for it (the field's key path replaced by the flag)."""
-    try:
-        return apply()
-    except ScannerError as e:
-        message = str(e)
-        key = _KEY_PATH.match(message)
-        if key:
-            message = message[key.end() :]
-        raise type(e)(f"{flag}: {message}") from None
 
 
 def add_output_arguments(

@@ -21,7 +21,7 @@ from scanner.calibrate.offline import (
     cameras_only_images,
 )
 from scanner.calibrate.report import error_text
-from scanner.cli.arguments import for_flag
+from scanner.configs.flags import for_flag
 from scanner.reconstruct.progress import ProgressBar
 from scanner.reconstruct.results_folder import require_replaceable
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from scanner.cli.arguments import (
+from scanner.commands.arguments import (
     ConfigDefault,
     add_command,
     add_config_file_argument,
@@ -28,7 +28,7 @@ def add_scan_parser(sub) -> None:
     scan = add_command(
         sub,
         "scan",
-        "scanner.scan.command:run_scan_command",
+        "scanner.commands.scan:run_scan_command",
         help="scan an object: plan viewpoints, move, capture stereo pairs, reconstruct",
         description="Scan an object in the simulated work cell: viewpoints on a sphere around it, "
         "collision-free motions, stereo captures saved to a scan directory, then reconstruction.",
@@ -142,7 +142,7 @@ def add_preview_parser(sub) -> None:
     preview = add_command(
         sub,
         "preview",
-        "scanner.scan.command:run_preview_command",
+        "scanner.commands.scan:run_preview_command",
         help="render the simulated work cell and one stereo pair to PNG files",
         description="Build the simulated cell with an object, move the arm to one reachable "
         "viewpoint and render an overview and the stereo pair (with lens distortion and noise).",

@@ -9,13 +9,13 @@ import importlib
 import sys
 
 from reconstruction.common.errors import ScannerError
-from scanner.calibrate.arguments import add_calibrate_parser
-from scanner.calibrate.exchange import add_export_parser, add_import_parser
-from scanner.cli.arguments import ScannerArgumentParser
-from scanner.inspect.command import add_inspect_parser
-from scanner.monitor.command import add_monitor_parser
-from scanner.reconstruct.arguments import add_merge_parser, add_reconstruct_parser
-from scanner.scan.arguments import add_preview_parser, add_scan_parser
+from scanner.commands.arguments import ScannerArgumentParser
+from scanner.commands.calibrate_arguments import add_calibrate_parser
+from scanner.commands.exchange import add_export_parser, add_import_parser
+from scanner.commands.inspect import add_inspect_parser
+from scanner.commands.monitor import add_monitor_parser
+from scanner.commands.reconstruct_arguments import add_merge_parser, add_reconstruct_parser
+from scanner.commands.scan_arguments import add_preview_parser, add_scan_parser
 
 
 def build_parser() -> argparse.ArgumentParser:

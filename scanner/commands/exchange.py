@@ -16,7 +16,13 @@ from contextlib import suppress
 from pathlib import Path
 
 from reconstruction.common.errors import ScannerError
-from scanner.cli.arguments import add_command, add_output_arguments, for_flag, name_arg, path_arg
+from scanner.commands.arguments import (
+    add_command,
+    add_output_arguments,
+    for_flag,
+    name_arg,
+    path_arg,
+)
 
 EXPORT_FORMATS = ("opencv", "ros", "ros-tf")
 IMPORT_FORMATS = ("opencv", "ros")
@@ -37,7 +43,7 @@ def add_export_parser(sub) -> None:
     export = add_command(
         sub,
         "export",
-        "scanner.calibrate.exchange:run_export",
+        "scanner.commands.exchange:run_export",
         help="write a calibration file as OpenCV or ROS files (camera pair, hand-eye transform)",
         description="Write the stereo camera of a calibration file as OpenCV stereo_calib "
         "files (intrinsics.yml, extrinsics.yml; T in metres) or ROS camera_info files "
@@ -74,7 +80,7 @@ def add_import_parser(sub) -> None:
     imp = add_command(
         sub,
         "import-calibration",
-        "scanner.calibrate.exchange:run_import",
+        "scanner.commands.exchange:run_import",
         help="make a calibration file from OpenCV or ROS stereo calibration files",
         description="Read OpenCV stereo_calib files (DIR/intrinsics.yml, DIR/extrinsics.yml) "
         "or ROS camera_info files (DIR/left.yaml, DIR/right.yaml) and write a calibration file "

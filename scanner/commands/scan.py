@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from reconstruction.common.errors import ScannerError
-from scanner.cli.arguments import for_flag
+from scanner.configs.flags import for_flag
 
 
 def run_scan_command(args: argparse.Namespace) -> int:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from scanner.cli.arguments import (
+from scanner.commands.arguments import (
     ConfigDefault,
     add_command,
     add_config_file_argument,
@@ -31,7 +31,7 @@ def add_calibrate_parser(sub) -> None:
     calibrate = add_command(
         sub,
         "calibrate",
-        "scanner.calibrate.cli:run_calibrate_command",
+        "scanner.commands.calibrate:run_calibrate_command",
         help="calibrate the stereo camera and the hand-eye transform X_FC",
         description="Move the camera around a calibration board, calibrate the stereo pair and "
         "the hand-eye transform, and write a calibration file that scan/reconstruct use "

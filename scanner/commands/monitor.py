@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from scanner.cli.arguments import (
+from scanner.commands.arguments import (
     add_command,
     add_config_file_argument,
     positive_float,
@@ -19,7 +19,7 @@ def add_monitor_parser(sub) -> None:
     monitor = add_command(
         sub,
         "monitor",
-        "scanner.monitor.command:run_monitor_command",
+        "scanner.commands.monitor:run_monitor_command",
         help="watch the cell with the static stereo camera for a while and report intrusions",
         description="Watch the simulated cell (arm at rest) with the static stereo camera: "
         "background model, robot pixels removed by its geometry, stereo confirmation inside "

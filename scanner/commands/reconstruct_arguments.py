@@ -3,7 +3,7 @@ imports: the parser is built for every command, `--help` included)."""
 
 from __future__ import annotations
 
-from scanner.cli.arguments import (
+from scanner.commands.arguments import (
     ConfigDefault,
     add_command,
     add_config_file_argument,
@@ -24,7 +24,7 @@ def add_reconstruct_parser(sub) -> None:
     reconstruct = add_command(
         sub,
         "reconstruct",
-        "scanner.reconstruct.command:run_reconstruct_command",
+        "scanner.commands.reconstruct:run_reconstruct_command",
         help="re-run the reconstruction offline on a saved scan directory",
         description="Rebuild the model from saved captures (never modifies them).",
     )
@@ -121,7 +121,7 @@ def add_merge_parser(sub) -> None:
     merge = add_command(
         sub,
         "merge",
-        "scanner.reconstruct.command:run_merge_command",
+        "scanner.commands.reconstruct:run_merge_command",
         help="align and merge scans of one object (e.g. hung differently) into one model",
         description="Align the passes of two or more scan directories (each of one or more "
         "hangings) into the first one's frame, verify every alignment, and build one model. "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from scanner.cli.arguments import add_command, add_output_arguments, path_arg, positive_float
+from scanner.commands.arguments import add_command, add_output_arguments, path_arg, positive_float
 
 # Exit code of an inspection that ran but found the part out of tolerance.
 EXIT_OUT_OF_TOLERANCE = 4
@@ -27,7 +27,7 @@ def add_inspect_parser(sub) -> None:
     inspect = add_command(
         sub,
         "inspect",
-        "scanner.inspect.command:run_inspect_command",
+        "scanner.commands.inspect:run_inspect_command",
         help="compare a model with its reference (CAD) mesh: deviations, picture, pass/fail",
         description="Align a reference mesh (e.g. the part's CAD model) onto a reconstructed "
         "model (global features + ICP, reported), then give the signed deviation of every "
