@@ -1,3 +1,3 @@
-"""`scanner calibrate`: the stereo pair and the hand-eye transform, live, offline or
-eye-to-hand; its reports; the calibration file to and from OpenCV and ROS (`scanner export`,
-`scanner import-calibration`)."""
+"""The work of `scanner calibrate`: the stereo pair and the hand-eye transform, live (simulated
+or on a driver), offline from recorded images, or eye-to-hand; the stations, the solve, the
+reports, their bands and the corner pictures."""

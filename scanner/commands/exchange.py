@@ -19,10 +19,10 @@ from reconstruction.common.errors import ScannerError
 from scanner.commands.arguments import (
     add_command,
     add_output_arguments,
-    for_flag,
     name_arg,
     path_arg,
 )
+from scanner.configs.flags import for_flag
 
 EXPORT_FORMATS = ("opencv", "ros", "ros-tf")
 IMPORT_FORMATS = ("opencv", "ros")

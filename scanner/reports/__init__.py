@@ -1,2 +1,2 @@
-"""What a reconstruction reports: figures against truth, their definitions and bands, summary.md,
+"""What a reconstruction reports: the figures' definitions and bands, summary.md, the unit rule,
 and the pictures (deviation, residuals, meshes rendered headless)."""
