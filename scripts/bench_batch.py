@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
+from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.reconstruct.batch import run_batch
 from scanner.reconstruct.command import ReconstructOptions, reconstruct_one
-from scanner.scan.config import ScanConfig, with_overrides
 from scanner.scan.run import run_scan
 
 METRICS = ("chamfer_mm", "chamfer_observed_mm", "handeye_error_mm", "handeye_error_deg")

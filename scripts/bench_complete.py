@@ -20,8 +20,8 @@ from pathlib import Path
 from benchmark_data import MESHES, require
 
 from reconstruction.common.errors import RefusedResultError
+from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.reconstruct.merge import run_merge
-from scanner.scan.config import ScanConfig, with_overrides
 from scanner.scan.run import run_scan
 
 FILES = {"bunny": "stanford-bunny.obj", "teapot": "teapot.obj", "spot": "spot.obj"}

@@ -24,11 +24,11 @@ from benchmark_data import MESHES, require
 from scipy.spatial.transform import Rotation
 
 from reconstruction.evaluation.metrics import handeye_error
+from scanner.configs.scan import ProcessingConfig, ScanConfig, with_overrides
 from scanner.reconstruct.scan_views import load_truth_of
 from scanner.reconstruct.stages import run_reconstruct
-from scanner.scan.config import ProcessingConfig, ScanConfig, with_overrides
-from scanner.scan.manifest import open_scan
 from scanner.scan.run import run_scan
+from scanner.scan_dir.manifest import open_scan
 
 BUNNY = MESHES / "stanford-bunny.obj"
 # (mm, deg): the diagonal and a few off it.

@@ -24,7 +24,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from scanner.scan.config import ScanConfig, with_overrides
+from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.scan.run import run_scan
 
 # (error-model seed, intruder start times s, intruder path seed) per scan.

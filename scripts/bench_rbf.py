@@ -20,8 +20,8 @@ from pathlib import Path
 from benchmark_data import MESHES, add_scan_options, mesh_scan
 
 from reconstruction.surfaces.config import SurfaceConfig
+from scanner.configs.scan import ProcessingConfig
 from scanner.reconstruct.stages import run_reconstruct
-from scanner.scan.config import ProcessingConfig
 
 BUNNY = "stanford-bunny.obj"
 

@@ -24,9 +24,9 @@ from benchmark_data import MESHES, add_scan_options, mesh_scan, require
 from reconstruction.common.stage_timer import cpu_seconds
 from reconstruction.evaluation.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
 from reconstruction.pipeline import VARIANTS, variant_config
+from scanner.configs.scan import ProcessingConfig
 from scanner.reconstruct.stages import run_reconstruct
-from scanner.scan.captures import CaptureStore
-from scanner.scan.config import ProcessingConfig
+from scanner.scan_dir.captures import CaptureStore
 
 OBJECTS = {
     "bunny": "stanford-bunny.obj",

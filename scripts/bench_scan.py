@@ -19,10 +19,10 @@ from pathlib import Path
 
 from planners.planner import Trajectory
 from reconstruction.common.stage_timer import cpu_seconds
-from scanner.scan.config import ScanConfig, with_overrides
-from scanner.scan.manifest import open_scan
+from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.scan.run import run_scan
 from scanner.scan.world import setup_world
+from scanner.scan_dir.manifest import open_scan
 
 
 def naive_order_motion_s(config: ScanConfig, scan_dir: Path) -> float:

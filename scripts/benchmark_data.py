@@ -12,7 +12,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from scanner.scan.config import ScanConfig, with_overrides
+from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.scan.run import run_scan
 
 DATA = Path(

@@ -76,7 +76,7 @@ def tiny_scan(run_dir):
     READ it only; a test that writes into a scan folder works on a copy (`shutil.copytree`)."""
     import yaml
 
-    from scanner.scan.config import load_scan_config
+    from scanner.configs.scan import load_scan_config
     from scanner.scan.run import ScanResult, run_scan
     from tests.tiny_scan import TINY_SCAN
 
@@ -95,7 +95,7 @@ def vase12_scan_dir(run_dir) -> Path:
     reconstructed; shared like `tiny_scan` (read only)."""
     from dataclasses import replace
 
-    from scanner.scan.config import ScanConfig, with_overrides
+    from scanner.configs.scan import ScanConfig, with_overrides
     from scanner.scan.run import run_scan
 
     def build(out: Path) -> None:

@@ -11,9 +11,9 @@ import yaml
 
 from reconstruction.common.errors import ScannerError
 from scanner.commands.main import main
+from scanner.configs.scan import load_scan_config
 from scanner.reconstruct.batch import check_ray_address, run_batch
 from scanner.reconstruct.command import ReconstructOptions, reconstruct_one
-from scanner.scan.config import load_scan_config
 from scanner.scan.run import run_scan
 from tests.tiny_scan import TINY_PROCESSING, TINY_SCAN
 

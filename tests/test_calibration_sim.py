@@ -23,7 +23,7 @@ from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.eye_in_hand import run_eye_in_hand
 from scanner.calibrate.eye_to_hand import run_eye_to_hand
 from scanner.calibrate.offline import OfflineOptions, calibrate_directory
-from scanner.scan.captures import CaptureStore
+from scanner.scan_dir.captures import CaptureStore
 
 HANDEYE_TOL_M = 0.3e-3  # the target
 HANDEYE_TOL_RAD = math.radians(0.05)
@@ -194,7 +194,7 @@ def test_an_interrupted_calibration_resumes_without_repeating_captures(tmp_path)
 
 
 def test_resume_of_a_folder_that_is_not_a_calibration(tmp_path):
-    from scanner.scan.captures import CaptureStore as Store
+    from scanner.scan_dir.captures import CaptureStore as Store
 
     Store.create(tmp_path / "scan", {"kind": "scan", "pose_count": 1})
     with pytest.raises(ScannerError, match="not a calibration directory"):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from reconstruction.common.errors import ScannerError
-from scanner.scan.captures import Capture, CaptureStore
+from scanner.scan_dir.captures import Capture, CaptureStore
 
 
 def _capture(index, count=3, seed=0):

@@ -10,9 +10,9 @@ import yaml
 
 from reconstruction.common.errors import ScannerError
 from scanner.commands.main import main
+from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.configs.typed_yaml import from_dict
 from scanner.monitor.cell_monitor import MonitorStoppedError
-from scanner.scan.config import ScanConfig, with_overrides
 from scanner.scan.run import run_scan
 from tests.tiny_scan import TINY_SCAN
 
@@ -55,7 +55,7 @@ def test_an_intruder_pauses_the_scan_and_no_capture_is_taken_while_it_is_there(i
 
 
 def test_the_arm_still_reaches_every_view_after_an_interrupted_motion(intruded, tmp_path):
-    from scanner.scan.captures import CaptureStore
+    from scanner.scan_dir.captures import CaptureStore
 
     # The same scan without the monitor: the pause changes the path, never the goals.
     plain = run_scan(replace(_config(), monitor=ScanConfig().monitor), tmp_path / "plain")
@@ -85,7 +85,7 @@ def test_a_failing_monitor_stops_the_arm_before_it_moves(tmp_path, monkeypatch):
     monkeypatch.setattr(detector.IntrusionDetector, "update", fails_after_warm_up)
     with pytest.raises(MonitorStoppedError, match="camera unplugged.*robot was stopped"):
         run_scan(_config(), tmp_path / "scan")
-    from scanner.scan.captures import CaptureStore
+    from scanner.scan_dir.captures import CaptureStore
 
     store = CaptureStore.open(tmp_path / "scan")
     assert store.captured_indices() == [] and store.read_manifest()["status"] == "interrupted"
@@ -108,7 +108,7 @@ def test_a_monitor_that_falls_behind_stops_the_arm(tmp_path, monkeypatch):
     config = replace(config, monitor=replace(config.monitor, max_lag_s=0.3))
     with pytest.raises(MonitorStoppedError, match="fell .* behind the camera"):
         run_scan(config, tmp_path / "scan")
-    from scanner.scan.captures import CaptureStore
+    from scanner.scan_dir.captures import CaptureStore
 
     assert CaptureStore.open(tmp_path / "scan").read_manifest()["status"] == "interrupted"
 

@@ -61,7 +61,7 @@ def test_a_folder_that_is_not_a_scan_is_refused(command, tmp_path):
 
 
 def test_printed_config_loads_back_as_the_same_configuration(tmp_path):
-    from scanner.scan.config import (
+    from scanner.configs.scan import (
         ScanConfig,
         load_scan_config,
         scan_config_to_dict,

@@ -17,7 +17,7 @@ from reconstruction.common.errors import ScannerError
 from scanner.calibrate.config import CalibrateConfig
 from scanner.commands.arguments import ScannerArgumentParser
 from scanner.commands.main import build_parser, main
-from scanner.scan.config import ProcessingConfig, ScanConfig, load_scan_config
+from scanner.configs.scan import ProcessingConfig, ScanConfig, load_scan_config
 
 
 def _commands() -> dict[str, argparse.ArgumentParser]:
@@ -101,10 +101,10 @@ def test_help_defaults_are_the_configurations(command, flag, expected):
 
 def test_help_defaults_follow_the_record(monkeypatch):
     # The default is read from the record when help is printed, not a copied literal.
-    import scanner.scan.config
+    import scanner.configs.scan
 
     changed = replace(ScanConfig(), hangings=ScanConfig().hangings + 2)
-    monkeypatch.setattr(scanner.scan.config, "ScanConfig", lambda: changed)
+    monkeypatch.setattr(scanner.configs.scan, "ScanConfig", lambda: changed)
     assert f"(default {changed.hangings})" in _help(_commands()["scan"], "--hangings")
 
 
@@ -113,7 +113,7 @@ def test_building_the_parser_leaves_the_configurations_unimported():
     # wait for them, so help defaults are read only when help is printed.
     code = (
         "import sys; from scanner.commands.main import build_parser; build_parser(); "
-        "heavy = ('pydrake', 'scanner.scan.config', 'scanner.calibrate.config', "
+        "heavy = ('pydrake', 'scanner.configs.scan', 'scanner.calibrate.config', "
         "'robots.simulation.truth'); "
         "print([m for m in heavy if m in sys.modules])"
     )

@@ -17,9 +17,9 @@ from hypothesis import strategies as st
 from reconstruction.calibration import exchange
 from reconstruction.calibration.file import Calibration, save_calibration
 from scanner.commands.main import build_parser, main
-from scanner.scan.captures import CaptureStore
-from scanner.scan.config import ScanConfig
-from scanner.scan.manifest import new_manifest
+from scanner.configs.scan import ScanConfig
+from scanner.scan_dir.captures import CaptureStore
+from scanner.scan_dir.manifest import new_manifest
 
 
 class WorkStartedError(Exception):

@@ -14,9 +14,9 @@ from robots.drivers.interfaces import (
 )
 from robots.models.rx60 import RX60
 from robots.simulation.robot import SimulatedRobot
-from scanner.scan.captures import CaptureStore
 from scanner.scan.decision import DecisionMaker, FixedViewList, State
-from scanner.scan.viewpoints import PlannedView, ViewOption
+from scanner.scan_dir.captures import CaptureStore
+from scanner.scan_dir.views import PlannedView, ViewOption
 
 
 @dataclass

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from scanner.scan.config import ScanConfig, load_scan_config, scan_config_to_dict
+from scanner.configs.scan import ScanConfig, load_scan_config, scan_config_to_dict
 
 CONFIGS = Path(__file__).resolve().parents[1] / "scanner" / "configs"
 

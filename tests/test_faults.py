@@ -17,9 +17,9 @@ import yaml
 
 from reconstruction.calibration.file import load_calibration
 from reconstruction.common.errors import StorageError
-from scanner.scan.captures import CaptureStore
-from scanner.scan.config import load_scan_config
+from scanner.configs.scan import load_scan_config
 from scanner.scan.run import run_scan
+from scanner.scan_dir.captures import CaptureStore
 from tests.conftest import shared_data
 from tests.tiny_scan import TINY_SCAN
 
@@ -138,9 +138,9 @@ def test_calibration_killed_at_any_moment_leaves_nothing_that_looks_complete(tmp
 
 def _full_disk_after(monkeypatch, png_writes: int) -> None:
     """Every capture image write after the first `png_writes` fails with ENOSPC."""
-    import scanner.scan.captures
+    import scanner.scan_dir.captures
 
-    real = scanner.scan.captures.write_bytes
+    real = scanner.scan_dir.captures.write_bytes
     count = {"png": 0}
 
     def write_bytes(path: Path, data: bytes) -> None:
@@ -150,7 +150,7 @@ def _full_disk_after(monkeypatch, png_writes: int) -> None:
                 raise OSError(errno.ENOSPC, "No space left on device", str(path))
         real(path, data)
 
-    monkeypatch.setattr(scanner.scan.captures, "write_bytes", write_bytes)
+    monkeypatch.setattr(scanner.scan_dir.captures, "write_bytes", write_bytes)
 
 
 def test_full_disk_stops_the_scan_and_keeps_every_capture(tiny_file, tmp_path, monkeypatch):

@@ -327,7 +327,7 @@ TINY = {
 
 @pytest.mark.slow
 def test_merging_scans_of_different_objects_is_refused(tmp_path):
-    from scanner.scan.config import load_scan_config
+    from scanner.configs.scan import load_scan_config
     from scanner.scan.run import run_scan
 
     scans = []
@@ -370,7 +370,7 @@ def test_merge_refuses_bad_input(two_hangings, tmp_path):
 
 @pytest.mark.slow
 def test_a_scan_killed_in_its_second_hanging_resumes_there(two_hangings):
-    from scanner.scan.captures import CaptureStore
+    from scanner.scan_dir.captures import CaptureStore
 
     killed = two_hangings.killed
     assert 12 < killed["captures"] < 24, "killed in the second hanging"

@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 from reconstruction.calibration.pose_files import POSE_PRESETS, read_pose_file, read_pose_list
 from reconstruction.common.errors import ScannerError
 from scanner.calibrate.config import CalibrateConfig
+from scanner.configs.scan import ScanConfig
 from scanner.configs.typed_yaml import from_dict, to_dict
-from scanner.scan.config import ScanConfig
 
 VALUES = st.one_of(
     st.none(),

@@ -31,9 +31,9 @@ from reconstruction.surfaces.export import (
 from reconstruction.surfaces.fused import FusedCloud
 from reconstruction.surfaces.meshes import SurfaceMesh
 from reconstruction.surfaces.topology import mesh_quality
+from scanner.configs.scan import load_scan_config
 from scanner.reconstruct.command import ReconstructOptions, _mesh_export
 from scanner.reconstruct.stages import load_processing_config
-from scanner.scan.config import load_scan_config
 
 # Where the robot's world puts a scanned object (the brief's STL spans x 0.30-0.51 m,
 # z 0.92-1.08 m): far from the origin, so a frame or unit slip cannot hide.

@@ -42,9 +42,9 @@ def test_the_next_view_looks_where_the_model_is_unseen():
 def test_a_scan_adds_the_next_best_views_it_was_allowed(tmp_path):
     import yaml
 
-    from scanner.scan.captures import CaptureStore
-    from scanner.scan.config import load_scan_config
+    from scanner.configs.scan import load_scan_config
     from scanner.scan.run import run_scan
+    from scanner.scan_dir.captures import CaptureStore
 
     path = tmp_path / "small.yaml"
     path.write_text(

@@ -14,11 +14,11 @@ import yaml
 from planners.ik import rig_centre_offset
 from robots.models.workcell import DEFAULT_CELL_BOXES
 from scanner.commands.main import main
+from scanner.configs.scan import scan_config_from_dict
 from scanner.plan_only.plan import PICTURE_FILE, PLAN_FILE, plan_scan, run_plan_only
-from scanner.scan.captures import CaptureStore
-from scanner.scan.config import scan_config_from_dict
 from scanner.scan.run import run_scan
 from scanner.scan.world import setup_world
+from scanner.scan_dir.captures import CaptureStore
 from tests.tiny_scan import TINY_SCAN
 
 # Capture-only: the comparison is about where the arm goes, not the model.

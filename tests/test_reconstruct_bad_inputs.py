@@ -11,9 +11,9 @@ import pytest
 import yaml
 
 from reconstruction.pipeline import variant_config
+from scanner.configs.scan import ProcessingConfig
 from scanner.reconstruct.stages import run_reconstruct
-from scanner.scan.captures import CaptureStore
-from scanner.scan.config import ProcessingConfig
+from scanner.scan_dir.captures import CaptureStore
 
 pytestmark = pytest.mark.slow
 
@@ -54,7 +54,7 @@ def _rough_mount_calibration(scan_dir, path):
     from reconstruction.common.transforms import twist_to_pose
     from reconstruction.evaluation.metrics import handeye_error
     from scanner.reconstruct.scan_views import load_truth_of
-    from scanner.scan.manifest import open_scan
+    from scanner.scan_dir.manifest import open_scan
 
     scan = open_scan(scan_dir)
     X_FC_true = load_truth_of(scan_dir)[0].X_FC

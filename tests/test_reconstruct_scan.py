@@ -18,8 +18,8 @@ from scipy.spatial import cKDTree
 from reconstruction.common.transforms import pose_difference
 from reconstruction.evaluation.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
 from reconstruction.pipeline import variant_config
+from scanner.configs.scan import ProcessingConfig
 from scanner.reconstruct.stages import run_reconstruct
-from scanner.scan.config import ProcessingConfig
 
 pytestmark = pytest.mark.slow
 

@@ -105,3 +105,36 @@ def test_opencv_is_a_4x_release_with_hand_eye_calibration():
     assert major == 4 and minor >= 10
     assert hasattr(cv2, "calibrateHandEye")
     assert hasattr(cv2, "STEREO_SGBM_MODE_SGBM_3WAY")
+
+
+# scanner's own packages, from the top down: each imports only packages of lower rows (the
+# commands sit above every concept; the scan directory and the configurations below what reads
+# them). A newcomer reads the package list in this order as the pipeline runs.
+SCANNER_LAYERS = (
+    ("commands",),
+    ("calibrate", "plan_only"),
+    ("scan",),
+    ("reconstruct", "inspect"),
+    ("scan_dir",),
+    ("configs",),
+    ("monitor",),
+    ("reports",),
+)
+
+
+def test_scanner_packages_import_only_the_rows_below():
+    rank = {name: row for row, names in enumerate(SCANNER_LAYERS) for name in names}
+    modules = _modules()
+    packages = {n.split(".")[1] for n in modules if n.startswith("scanner.") and n.count(".") > 1}
+    assert packages == set(rank), "every scanner package has its row"
+    wrong = []
+    for name, path in modules.items():
+        parts = name.split(".")
+        if parts[0] != "scanner" or len(parts) < 3:
+            continue
+        for target in _imports(path, modules):
+            other = target.split(".")
+            if other[0] == "scanner" and len(other) > 1 and other[1] != parts[1]:
+                if rank[other[1]] <= rank[parts[1]]:
+                    wrong.append(f"{name} -> {target}")
+    assert not wrong, wrong

@@ -14,9 +14,9 @@ import pytest
 import yaml
 
 from reconstruction.common.errors import ScannerError
-from scanner.scan.captures import CaptureStore
-from scanner.scan.config import ScanConfig, load_scan_config
+from scanner.configs.scan import ScanConfig, load_scan_config
 from scanner.scan.run import run_scan
+from scanner.scan_dir.captures import CaptureStore
 from tests.tiny_scan import TINY_SCAN
 
 
@@ -219,7 +219,7 @@ def test_resume_of_a_complete_scan_changes_nothing(tiny_scan):
 
 
 def test_resume_compares_only_the_options_given():
-    from scanner.scan.config import resume_request
+    from scanner.configs.scan import resume_request
 
     saved = replace(ScanConfig(object="bracket"), views=replace(ScanConfig().views, count=7))
     assert resume_request(saved, None) == saved
@@ -229,7 +229,7 @@ def test_resume_compares_only_the_options_given():
 
 
 def test_resume_with_a_config_file_compares_only_its_keys(tmp_path):
-    from scanner.scan.config import resume_request
+    from scanner.configs.scan import resume_request
 
     saved = ScanConfig(object="bracket")
     path = tmp_path / "views.yaml"

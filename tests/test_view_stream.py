@@ -9,9 +9,9 @@ from reconstruction.pipeline import filter_views
 from reconstruction.stereo.rectification import compute_rectification
 from scanner.reconstruct.scan_views import capture_views, geometry_filter, with_roi_centre
 from scanner.reconstruct.stages import run_reconstruct
+from scanner.reconstruct.view_stream import ViewStream, processing_hidden_s
 from scanner.scan.decision import ViewOutcome
-from scanner.scan.manifest import open_scan
-from scanner.scan.view_stream import ViewStream, processing_hidden_s
+from scanner.scan_dir.manifest import open_scan
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,10 @@ import pytest
 from planners.ik import Viewpoint
 from planners.tour import plan_tour, tour_cost
 from reconstruction.common.errors import ScannerError
+from scanner.configs.views import ViewpointConfig
 from scanner.scan.sampling import fibonacci_directions
-from scanner.scan.viewpoints import PlannedView, ViewOption, ViewpointConfig, generate_viewpoints
+from scanner.scan.viewpoints import generate_viewpoints
+from scanner.scan_dir.views import PlannedView, ViewOption
 
 
 def _min_angle(d):

@@ -27,8 +27,8 @@ from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.errors import ScannerError
 from robots.models.camera_tool import nominal_X_FC
 from scanner.calibrate.solve import no_board_anywhere
-from scanner.reconstruct.results_folder import require_replaceable, staged_folder
-from scanner.scan.captures import atomic_write_text
+from scanner.scan_dir.captures import atomic_write_text
+from scanner.scan_dir.results_folder import require_replaceable, staged_folder
 
 CALIBRATION_FILE = "calibration.yaml"
 

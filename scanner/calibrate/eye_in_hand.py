@@ -34,7 +34,12 @@ from scanner.calibrate.offline import OfflineOptions, calibrate_directory
 from scanner.calibrate.solve import CalibrationRun
 from scanner.calibrate.stations import plan_stations
 from scanner.configs.typed_yaml import to_dict
-from scanner.scan.captures import Capture, CaptureStore, atomic_write_text, require_same_settings
+from scanner.scan_dir.captures import (
+    Capture,
+    CaptureStore,
+    atomic_write_text,
+    require_same_settings,
+)
 
 # Moves the arm to a configuration; False when it could not (the station is skipped).
 MoveFn = Callable[[np.ndarray], bool]

@@ -39,9 +39,9 @@ from scanner.calibrate.eye_to_hand_store import (
     write_manifest,
     write_point,
 )
-from scanner.reconstruct.results_folder import free_results_dir, require_replaceable, staged_folder
 from scanner.reports.units import deg, mm
-from scanner.scan.captures import atomic_write_text
+from scanner.scan_dir.captures import atomic_write_text
+from scanner.scan_dir.results_folder import free_results_dir, require_replaceable, staged_folder
 
 
 @dataclass(frozen=True, eq=False)

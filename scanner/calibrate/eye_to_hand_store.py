@@ -32,7 +32,7 @@ from reconstruction.stereo.camera_model import (
     stereo_camera_from_dict,
     stereo_camera_to_dict,
 )
-from scanner.scan.captures import atomic_write_text
+from scanner.scan_dir.captures import atomic_write_text
 
 MANIFEST = "eye_to_hand_points.yaml"
 SCHEMA = "scanner.eye_to_hand_points/1"

@@ -35,8 +35,8 @@ from scanner.calibrate.corners import ImageLoader, rank_pictures
 from scanner.calibrate.report import CALIBRATION_FILE, build_report, truth_errors, write_results
 from scanner.calibrate.solve import CalibrationRun, Solution, solve
 from scanner.configs.typed_yaml import from_dict
-from scanner.reconstruct.results_folder import free_results_dir, require_replaceable
-from scanner.scan.captures import CaptureStore
+from scanner.scan_dir.captures import CaptureStore
+from scanner.scan_dir.results_folder import free_results_dir, require_replaceable
 
 IMAGE_SUFFIXES = (".png", ".bmp", ".jpg", ".jpeg", ".tif", ".tiff")
 

@@ -18,9 +18,9 @@ from scanner.calibrate.corners import CornerPicture, ImageLoader, write_pictures
 from scanner.calibrate.judge import figure_lines, overall
 from scanner.calibrate.sigma_check import error_in_sigmas
 from scanner.calibrate.solve import Solution, x_fc_sigma_record
-from scanner.reconstruct.results_folder import staged_folder
 from scanner.reports.units import deg, mm
-from scanner.scan.captures import atomic_write_text
+from scanner.scan_dir.captures import atomic_write_text
+from scanner.scan_dir.results_folder import staged_folder
 
 CALIBRATION_FILE = "calibration.yaml"
 

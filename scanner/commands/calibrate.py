@@ -23,7 +23,7 @@ from scanner.calibrate.offline import (
 from scanner.calibrate.report import error_text
 from scanner.configs.flags import for_flag
 from scanner.reconstruct.progress import ProgressBar
-from scanner.reconstruct.results_folder import require_replaceable
+from scanner.scan_dir.results_folder import require_replaceable
 
 
 def _board_size(text: str) -> tuple[int, int]:

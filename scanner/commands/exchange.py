@@ -144,7 +144,7 @@ def _write_files(out: Path, write, names: tuple[str, ...], force: bool) -> list[
     """`write(folder)` into a hidden folder in `out`, then each file renamed into `out`: a run
     that fails half-way leaves no half-written file; files already there are refused unless
     `force`."""
-    from scanner.reconstruct.results_folder import storage_error
+    from scanner.scan_dir.results_folder import storage_error
 
     existing = [n for n in names if (out / n).exists()]
     if existing and not force:
@@ -224,7 +224,7 @@ def run_import(args: argparse.Namespace) -> int:
     from reconstruction.calibration import exchange
     from reconstruction.calibration.file import Calibration, save_calibration
     from robots.models.camera_tool import nominal_X_FC
-    from scanner.reconstruct.results_folder import require_new_file, storage_error
+    from scanner.scan_dir.results_folder import require_new_file, storage_error
 
     fmt = _choose_format(args.format, IMPORT_FORMATS)
     unit_m = None

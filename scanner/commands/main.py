@@ -53,7 +53,7 @@ def _run(args: argparse.Namespace) -> int:
     """Each command's parser names its runner (`add_command(..., run="module:function")`),
     imported only now, so that building the parser stays light."""
     if getattr(args, "out", None) is not None:
-        from scanner.reconstruct.results_folder import require_creatable
+        from scanner.scan_dir.results_folder import require_creatable
 
         require_creatable(args.out, "--out")
     module, function = args.run.split(":")

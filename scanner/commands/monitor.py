@@ -47,8 +47,8 @@ def add_monitor_parser(sub) -> None:
 
 def run_monitor_command(args: argparse.Namespace) -> int:
     from reconstruction.common.errors import ScannerError
+    from scanner.configs.scan import load_scan_config, with_overrides
     from scanner.monitor.scan_monitor import ScanMonitor
-    from scanner.scan.config import load_scan_config, with_overrides
     from scanner.scan.world import setup_world
 
     config = with_overrides(

@@ -17,7 +17,7 @@ from scanner.commands.arguments import (
 )
 
 # Where reconstruct's flags take their defaults from when neither they nor --config give a value.
-PROCESSING_CONFIG = "scanner.scan.config:ProcessingConfig"
+PROCESSING_CONFIG = "scanner.configs.scan:ProcessingConfig"
 
 
 def add_reconstruct_parser(sub) -> None:

@@ -13,8 +13,8 @@ from scanner.configs.flags import for_flag
 def run_scan_command(args: argparse.Namespace) -> int:
     import datetime
 
+    from scanner.configs.scan import load_scan_config, with_overrides
     from scanner.reconstruct.progress import ProgressBar
-    from scanner.scan.config import load_scan_config, with_overrides
     from scanner.scan.run import run_scan
 
     flags = dict(
@@ -35,8 +35,8 @@ def run_scan_command(args: argparse.Namespace) -> int:
     if args.resume is not None:
         if args.out is not None or args.force:
             raise ScannerError("--resume DIR continues DIR; do not give --out or --force")
-        from scanner.scan.config import resume_request
-        from scanner.scan.manifest import open_scan
+        from scanner.configs.scan import resume_request
+        from scanner.scan_dir.manifest import open_scan
 
         given = {k: v for k, v in flags.items() if v is not None}
         saved = open_scan(args.resume).config
@@ -47,7 +47,7 @@ def run_scan_command(args: argparse.Namespace) -> int:
         if args.print_config:
             import yaml
 
-            from scanner.scan.config import scan_config_to_dict
+            from scanner.configs.scan import scan_config_to_dict
 
             print(yaml.safe_dump(scan_config_to_dict(config), sort_keys=False), end="")
             return 0

@@ -21,7 +21,7 @@ from scanner.commands.arguments import (
 
 BUILTIN_HELP = "vase, bracket, pebble"
 # Where scan's flags take their defaults from when neither they nor --config give a value.
-SCAN_CONFIG = "scanner.scan.config:ScanConfig"
+SCAN_CONFIG = "scanner.configs.scan:ScanConfig"
 
 
 def add_scan_parser(sub) -> None:

@@ -162,7 +162,7 @@ def inspect_model(
 
 def run_inspect(target: Path, options: InspectOptions) -> InspectRun:
     from reconstruction.surfaces.meshes import MESH_SUFFIXES
-    from scanner.reconstruct.results_folder import (
+    from scanner.scan_dir.results_folder import (
         free_results_dir,
         require_replaceable,
         staged_folder,
@@ -189,7 +189,7 @@ def _write_files(folder: Path, model, placed, signed, stats, report, options) ->
     import open3d as o3d
 
     from scanner.reports.deviation_picture import deviation_colours, write_deviation_picture
-    from scanner.scan.captures import atomic_write_text
+    from scanner.scan_dir.captures import atomic_write_text
 
     mesh = o3d.geometry.TriangleMesh(
         o3d.utility.Vector3dVector(model.vertices), o3d.utility.Vector3iVector(model.triangles)

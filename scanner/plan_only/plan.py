@@ -18,13 +18,14 @@ from planners.tour import plan_tour
 from reconstruction.common.errors import ScannerError
 from robots.models.kinematics import Kinematics
 from robots.models.workcell import keep_out_radius_m
+from scanner.configs.scan import ScanConfig
+from scanner.configs.views import ViewpointConfig
 from scanner.plan_only.records import PlannedViewpoint, ScanPlan
-from scanner.reconstruct.results_folder import holds_result, staged_folder
-from scanner.scan.config import ScanConfig
 from scanner.scan.decision import FixedViewList
 from scanner.scan.sampling import fibonacci_directions
-from scanner.scan.viewpoints import PlannedView, ViewpointConfig
 from scanner.scan.world import ScanWorld, setup_world
+from scanner.scan_dir.results_folder import holds_result, staged_folder
+from scanner.scan_dir.views import PlannedView
 
 PLAN_FILE = "plan.json"  # written last: its presence marks a finished plan folder
 PICTURE_FILE = "plan.png"

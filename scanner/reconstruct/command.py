@@ -30,14 +30,14 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
     """The scan's own settings unless --config; results in a free SCAN_DIR/results[-N] unless
     --out (which must not hold a reconstruction, unless --force)."""
     from reconstruction.calibration.file import load_calibration
-    from scanner.reconstruct.results_folder import require_replaceable
     from scanner.reconstruct.stages import (
         RECONSTRUCTION_MARKER,
         free_reconstruction_dir,
         load_processing_config,
         run_reconstruct,
     )
-    from scanner.scan.manifest import open_scan
+    from scanner.scan_dir.manifest import open_scan
+    from scanner.scan_dir.results_folder import require_replaceable
 
     scan = open_scan(scan_dir)
     if options.config is not None:

@@ -20,8 +20,8 @@ from reconstruction.evaluation.metrics import (
 )
 from reconstruction.hangings.alignment import alignment_error
 from reconstruction.pipeline import ReconstructionResult
+from scanner.configs.scan import ProcessingConfig
 from scanner.reconstruct.scan_views import Gathered
-from scanner.scan.config import ProcessingConfig
 
 
 def _true_eyes(views: Gathered, to_first: list[np.ndarray]) -> dict[int, np.ndarray]:

@@ -7,14 +7,14 @@ from pathlib import Path
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.stereo.camera_model import stereo_camera_to_dict
-from scanner.reconstruct.results_folder import require_replaceable
 from scanner.reconstruct.stages import (
     RECONSTRUCTION_MARKER,
     ReconstructRun,
     load_processing_config,
     run_reconstruct,
 )
-from scanner.scan.manifest import open_scan
+from scanner.scan_dir.manifest import open_scan
+from scanner.scan_dir.results_folder import require_replaceable
 
 
 def run_merge(

@@ -22,9 +22,9 @@ from reconstruction.stereo.params import StereoParams
 from reconstruction.stereo.rectification import Rectification, compute_rectification
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds
 from robots.models.workcell import keep_out_radius_m
-from scanner.scan.captures import Capture
-from scanner.scan.config import ProcessingConfig, ScanConfig
-from scanner.scan.manifest import SavedScan
+from scanner.configs.scan import ProcessingConfig, ScanConfig
+from scanner.scan_dir.captures import Capture
+from scanner.scan_dir.manifest import SavedScan
 
 log = logging.getLogger("scanner.reconstruct.stages")
 

@@ -32,6 +32,7 @@ from reconstruction.pipeline import ReconstructionResult, reconstruct_views
 from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.surfaces.export import export_record, prepare_exports
 from reconstruction.surfaces.topology import mesh_quality
+from scanner.configs.scan import ProcessingConfig
 from scanner.configs.typed_yaml import load_yaml_file, to_dict
 from scanner.reconstruct.evaluation import (
     hangings_report,
@@ -39,12 +40,11 @@ from scanner.reconstruct.evaluation import (
     to_first_hanging,
     truth_metrics,
 )
-from scanner.reconstruct.results_folder import free_results_dir, holds_result, staged_folder
 from scanner.reconstruct.scan_views import gather_views, with_roi_centre
-from scanner.scan.captures import atomic_write_text
-from scanner.scan.config import ProcessingConfig
-from scanner.scan.manifest import SavedScan, open_scan
-from scanner.scan.view_stream import StreamedViews, settings_key
+from scanner.reconstruct.view_stream import StreamedViews, settings_key
+from scanner.scan_dir.captures import atomic_write_text
+from scanner.scan_dir.manifest import SavedScan, open_scan
+from scanner.scan_dir.results_folder import free_results_dir, holds_result, staged_folder
 
 log = logging.getLogger("scanner.reconstruct.stages")
 

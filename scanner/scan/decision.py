@@ -23,9 +23,9 @@ import numpy as np
 from planners.planner import PlanFailure
 from reconstruction.common.stage_timer import StageTimer
 from robots.drivers.interfaces import CaptureError, RobotDriver, StereoCameraDriver
-from scanner.scan.captures import Capture, CaptureStore
-from scanner.scan.config import MachineConfig
-from scanner.scan.viewpoints import PlannedView, ViewOption
+from scanner.configs.scan import MachineConfig
+from scanner.scan_dir.captures import Capture, CaptureStore
+from scanner.scan_dir.views import PlannedView, ViewOption
 
 log = logging.getLogger("scanner.scan.decision")
 

@@ -12,17 +12,18 @@ import numpy as np
 from planners.tour import Tour, plan_tour
 from reconstruction.common.errors import StorageError
 from robots.models.kinematics import Kinematics
+from scanner.configs.scan import ScanConfig
 from scanner.monitor.cell_monitor import MonitorStoppedError
 from scanner.monitor.scan_monitor import ScanMonitor
 from scanner.reconstruct.scan_views import model_so_far
-from scanner.scan.captures import CaptureStore
-from scanner.scan.config import ScanConfig
+from scanner.reconstruct.view_stream import ViewStream, with_stream
 from scanner.scan.decision import DecisionMaker, FixedViewList, RunSummary
-from scanner.scan.manifest import open_scan, views_to_manifest
 from scanner.scan.next_best_view import CoverageModel
-from scanner.scan.view_stream import ViewStream, with_stream
-from scanner.scan.viewpoints import PlannedView, planned_view
+from scanner.scan.viewpoints import planned_view
 from scanner.scan.world import ScanWorld, WatchedRobot, live_cloud
+from scanner.scan_dir.captures import CaptureStore
+from scanner.scan_dir.manifest import open_scan, views_to_manifest
+from scanner.scan_dir.views import PlannedView
 
 log = logging.getLogger("scanner.scan.hangings")
 

@@ -19,18 +19,19 @@ from robots.models.kinematics import Kinematics
 from robots.simulation.cell import Simulation, object_vertices_W
 from robots.simulation.operator import hung_pose
 from robots.simulation.truth import save_truth
+from scanner.configs.scan import ScanConfig, scan_config_to_dict
 from scanner.monitor.scan_monitor import intruders_truth
 from scanner.reconstruct.stages import holds_reconstruction, run_reconstruct
+from scanner.reconstruct.view_stream import ViewStream, processing_hidden_s
 from scanner.reports.summary import write_summary
-from scanner.scan.captures import CaptureStore, atomic_write_text, require_same_settings
-from scanner.scan.config import ScanConfig, scan_config_to_dict
 from scanner.scan.decision import RunSummary
 from scanner.scan.hangings import HangingRunner
-from scanner.scan.manifest import SavedScan, new_manifest, open_scan
 from scanner.scan.session import interruptible, log_file, meshcat_if
-from scanner.scan.view_stream import ViewStream, processing_hidden_s
-from scanner.scan.viewpoints import PlannedView, ViewPlan, generate_viewpoints
+from scanner.scan.viewpoints import ViewPlan, generate_viewpoints
 from scanner.scan.world import ScanWorld, setup_world
+from scanner.scan_dir.captures import CaptureStore, atomic_write_text, require_same_settings
+from scanner.scan_dir.manifest import SavedScan, new_manifest, open_scan
+from scanner.scan_dir.views import PlannedView
 
 log = logging.getLogger("scanner.scan.run")
 

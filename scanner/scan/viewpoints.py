@@ -21,72 +21,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planners.ik import Viewpoint
-from reconstruction.common.checks import (
-    check_fields,
-    fraction,
-    integer,
-    positive,
-    require_choice,
-    require_count,
-)
 from reconstruction.common.errors import ScannerError
+from scanner.configs.views import ViewpointConfig
 from scanner.scan.sampling import farthest_point_sample, fibonacci_directions
-
-DISTRIBUTIONS = ("reachable", "sphere")
-
-# More views than this are a typo (a 24-view scan sees what the arm can reach).
-MAX_VIEWS = 1000
-
-
-@dataclass(frozen=True)
-class ViewpointConfig:
-    """Where the views go. Angles in radians, distances in metres."""
-
-    count: int = integer(24, maximum=MAX_VIEWS)
-    # Far beyond the RX60's reach (0.67 m from the shoulder): a typo, not a plan.
-    radius_m: float = positive(0.5, at_most=3.0)
-    center_m: tuple[float, float, float] | None = None  # None: the configured object centre
-    distribution: str = "reachable"
-    elevation_min_rad: float = math.radians(-75.0)
-    elevation_max_rad: float = math.radians(75.0)
-    candidates: int = 600
-    roll_candidates: int = integer(12)
-    options_per_view: int = integer(6)
-    replace_within_rad: float = positive(math.radians(20.0))
-    lloyd_iterations: int = integer(10, minimum=0)
-    # Next-best views: after a hanging's planned views, up to this many more, each where the
-    # current model's unseen surface is best in view; stop when the best would show less than
-    # min_gain of the closed surface.
-    max_extra_views: int = integer(0, minimum=0, maximum=MAX_VIEWS)
-    min_gain: float = fraction(0.01)
-
-    def __post_init__(self) -> None:
-        if self.count < 1:
-            raise ScannerError(f"views.count: at least 1 view is needed, got {self.count}")
-        check_fields("views", self)
-        require_choice("views", "distribution", self.distribution, DISTRIBUTIONS)
-        if not -math.pi / 2 <= self.elevation_min_rad < self.elevation_max_rad <= math.pi / 2:
-            raise ScannerError("views.elevation_*_rad: need -pi/2 <= min < max <= pi/2")
-        require_count("views", self, ("candidates",), minimum=self.count)
-
-
-@dataclass(frozen=True, eq=False)
-class ViewOption:
-    """One way to take a view: a camera roll and the joint configuration realising it."""
-
-    roll_rad: float
-    q: np.ndarray
-
-
-@dataclass(frozen=True, eq=False)
-class PlannedView:
-    """A view to capture: index in the scan, direction from the centre, the look-at viewpoint
-    (roll of the preferred option) and the alternative configurations (rolls x IK branches)."""
-
-    index: int
-    direction: np.ndarray
-    viewpoint: Viewpoint
-    options: tuple[ViewOption, ...] = field(default=())
+from scanner.scan_dir.views import PlannedView, ViewOption
 
 
 @dataclass(frozen=True)

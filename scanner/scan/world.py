@@ -20,7 +20,7 @@ from robots.drivers.interfaces import Hardware, RobotDriver, StereoCameraDriver,
 from robots.models import camera_tool
 from robots.models.workcell import Workcell, build_workcell, keep_out_radius_m
 from robots.simulation.cell import Simulation, cache_dir, create_simulation, rehang
-from scanner.scan.config import ScanConfig
+from scanner.configs.scan import ScanConfig
 
 
 @dataclass(frozen=True, eq=False)

@@ -28,8 +28,8 @@ from reconstruction.stereo.camera_model import stereo_camera_to_dict
 from reconstruction.stereo.rectification import compute_rectification
 from scanner.configs.typed_yaml import to_dict
 from scanner.reconstruct.scan_views import geometry_filter, stereo_view, with_roi_centre
-from scanner.scan.captures import Capture
-from scanner.scan.manifest import SavedScan
+from scanner.scan_dir.captures import Capture
+from scanner.scan_dir.manifest import SavedScan
 
 log = logging.getLogger("scanner.scan.run")
 

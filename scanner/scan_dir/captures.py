@@ -26,7 +26,7 @@ import numpy as np
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.yaml_files import read_yaml, yaml_text
-from scanner.reconstruct.results_folder import storage_error
+from scanner.scan_dir.results_folder import storage_error
 
 SCAN_SCHEMA = "scanner.scan/1"
 CAPTURE_SCHEMA = "scanner.capture/1"

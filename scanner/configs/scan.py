@@ -22,8 +22,8 @@ from robots.models.workcell import WorkcellConfig
 from robots.simulation.truth import ErrorModel
 from scanner.configs.flags import for_flag
 from scanner.configs.typed_yaml import from_dict, load_yaml_file, to_dict
+from scanner.configs.views import ViewpointConfig
 from scanner.monitor.cell_monitor import MonitorSettings
-from scanner.scan.viewpoints import ViewpointConfig
 
 
 @dataclass(frozen=True)

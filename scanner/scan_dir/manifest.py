@@ -22,9 +22,9 @@ from reconstruction.stereo.camera_model import (
     stereo_camera_to_dict,
 )
 from robots.models.rx60 import RX60, rx60_urdf
-from scanner.scan.captures import CaptureStore
-from scanner.scan.config import ScanConfig, scan_config_from_dict, scan_config_to_dict
-from scanner.scan.viewpoints import PlannedView, ViewOption
+from scanner.configs.scan import ScanConfig, scan_config_from_dict, scan_config_to_dict
+from scanner.scan_dir.captures import CaptureStore
+from scanner.scan_dir.views import PlannedView, ViewOption
 
 
 def views_to_manifest(views: list[PlannedView]) -> list[dict]:
