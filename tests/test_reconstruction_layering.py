@@ -134,7 +134,7 @@ def test_scanner_packages_import_only_the_rows_below():
             continue
         for target in _imports(path, modules):
             other = target.split(".")
-            if other[0] == "scanner" and len(other) > 1 and other[1] != parts[1]:
-                if rank[other[1]] <= rank[parts[1]]:
-                    wrong.append(f"{name} -> {target}")
+            outside = other[0] == "scanner" and len(other) > 1 and other[1] != parts[1]
+            if outside and rank[other[1]] <= rank[parts[1]]:
+                wrong.append(f"{name} -> {target}")
     assert not wrong, wrong
