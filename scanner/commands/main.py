@@ -14,8 +14,8 @@ from scanner.commands.calibrate_arguments import add_calibrate_parser
 from scanner.commands.exchange import add_export_parser, add_import_parser
 from scanner.commands.inspect import add_inspect_parser
 from scanner.commands.monitor import add_monitor_parser
-from scanner.commands.reconstruct_arguments import add_merge_parser, add_reconstruct_parser
-from scanner.commands.scan_arguments import add_preview_parser, add_scan_parser
+from scanner.commands.reconstruct import add_merge_parser, add_reconstruct_parser
+from scanner.commands.scan import add_preview_parser, add_scan_parser
 
 
 def build_parser() -> argparse.ArgumentParser:
