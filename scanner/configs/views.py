@@ -18,7 +18,6 @@ from reconstruction.common.errors import ScannerError
 
 DISTRIBUTIONS = ("reachable", "sphere")
 
-
 # More views than this are a typo (a 24-view scan sees what the arm can reach).
 MAX_VIEWS = 1000
 
