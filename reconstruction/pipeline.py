@@ -35,7 +35,7 @@ from reconstruction.handeye.correction import (
     plausible_correction,
 )
 from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment
-from reconstruction.hangings.merge import align_hangings, group_positions
+from reconstruction.hangings.merge import align_hangings, group_positions, in_own_frames
 from reconstruction.registration.all_views import EdgeReport, RegisteredViews, register_hangings
 from reconstruction.registration.filtering import (
     FilterConfig,
@@ -43,6 +43,7 @@ from reconstruction.registration.filtering import (
     FilteredCloud,
     RemovePoints,
     filter_view,
+    refiltered,
 )
 from reconstruction.registration.pairwise import (
     IcpConfig,
@@ -51,6 +52,7 @@ from reconstruction.registration.posegraph import PoseGraphConfig, optimise_pose
 from reconstruction.registration.views import ViewCloud
 from reconstruction.surfaces.build import surface_from
 from reconstruction.surfaces.config import SurfaceConfig
+from reconstruction.surfaces.fixture import FixtureLine, without_fixture
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds, refine_fused
 from reconstruction.surfaces.meshes import DepthView, SurfaceInput, SurfaceMesh
 from reconstruction.surfaces.poisson_solver import start_solver
@@ -185,17 +187,25 @@ def build_surfaces(
     remove_points: RemovePoints | None = None,
     timer: StageTimer | None = None,
     beside: Callable[[FusedCloud], None] | None = None,
+    fixtures: Sequence[FixtureLine] = (),
 ) -> tuple[FusedCloud, dict[str, SurfaceMesh], list[str]]:
     """Fused cloud and the configured meshes for one set of camera poses. Also what a
     benchmark calls with the other pose sets of a result (kinematic, registered) to compare
     variants without re-running registration. Returns (fused, meshes by method, notes).
-    `beside(fused)`: more work on the fused cloud, done while the meshes are built."""
+    `beside(fused)`: more work on the fused cloud, done while the meshes are built.
+    `fixtures`: the lines of the rods the object hung from, in the frame of `X_WC`: a thin
+    strip left along one is cut from the fused cloud before meshing."""
     timer = timer or StageTimer()
     notes = []
     with timer("fuse"):
         fused = fuse_clouds(clouds, X_WC, config.surfaces.fused_voxel_size_m)
         surfaces = config.surfaces
         fused = refine_fused(fused, surfaces.fused_normal_radius_m, surfaces.fused_outlier_sigmas)
+        if fixtures:
+            keep = without_fixture(fused.points_W, fixtures)
+            if not keep.all():
+                notes.append(f"{int((~keep).sum())} fused points on the fixture's line cut")
+                fused = FusedCloud(fused.points_W[keep], fused.colors[keep], fused.normals_W[keep])
     depth_views = [
         DepthView(v.depth, X, v.index) for v, X in zip(views, X_WC) if v.depth is not None
     ]
@@ -229,6 +239,7 @@ def reconstruct_views(
     filtered: Mapping[int, FilteredCloud] | None = None,
     on_stage: StageListener | None = None,
     eyes_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
+    fixtures: Sequence[FixtureLine] = (),
 ) -> ReconstructionResult:
     """The whole reconstruction on in-memory views (see the module docstring).
 
@@ -246,6 +257,8 @@ def reconstruct_views(
         eyes_of: `eyes_of(index, X_WC)`, a view's camera centres in W (a stereo rig: both
             eyes, as `coverage_estimate` takes them); given, the coverage is estimated while
             the meshes are built.
+        fixtures: the line of the rod each hanging hung from, in its own frame (one for all
+            hangings, or one per hanging); the model is guarded against a strip along it.
 
     Returns:
         The views' poses (kinematic, registered, final), the registration edges, the X_FC used
@@ -338,6 +351,10 @@ def reconstruct_views(
                 graph = optimise_pose_graph(X_WC, registered.kept_edges, config.pose_graph)
             X_WC = list(graph.X_WC)
 
+    if remove_points is not None:
+        # The rod and the robot once more, each view at its final pose in its hanging's frame.
+        with timer("filter"):
+            clouds = [refiltered(c, X, remove_points) for c, X in zip(clouds, X_WC)]
     alignments: tuple[PassAlignment, ...] = ()
     if len(groups) > 1 and "poisson" in config.surfaces.methods:
         # Hangings together surround the object: its closed model comes from the same solve.
@@ -349,6 +366,14 @@ def reconstruct_views(
                 views, clouds, X_WC, groups, config.alignment, config.surfaces.fused_voxel_size_m
             )
     hanging_of = {k: h for h, group in enumerate(groups) for k in group}
+    T_of = [np.eye(4), *(a.T for a in alignments)]  # each hanging's frame -> the first's
+    if fixtures:
+        lines = list(fixtures) * (len(groups) if len(fixtures) == 1 else 1)
+        fixtures = [line.moved(T) for line, T in zip(lines, T_of, strict=True)]
+    if remove_points is not None and len(groups) > 1:
+        remove_points = in_own_frames(
+            remove_points, T_of, {v.index: hanging_of[k] for k, v in enumerate(views)}
+        )
     coverage: list[Coverage] = []
 
     def estimate_coverage(fused: FusedCloud) -> None:
@@ -371,6 +396,7 @@ def reconstruct_views(
         remove_points,
         timer,
         estimate_coverage if eyes_of is not None else None,
+        fixtures,
     )
     fused_nominal = None
     if handeye is not None and not handeye.diagnosis.converged:

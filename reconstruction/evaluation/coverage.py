@@ -5,6 +5,13 @@ bridges the gap with a smooth patch of about the missing area. The coverage esti
 share of that closed surface which some view of the scan (both its cameras, at the estimated
 pose) sees, facing it and unoccluded: the same test the simulator's `observed_fraction` applies
 to the true surface and the true camera centres, here on what the software itself knows.
+
+A part counts as seen only where the data also hold it: in view is not measured (stereo finds
+nothing on grazing, dark or shiny parts, the filters drop the rod's surroundings), and the
+closed surface's patches over a gap are smoother and smaller than what they hide. Without that
+test the estimate ran 0.01-0.09 above the true observed fraction (a flat object's first
+hanging: 0.674 against 0.585); a scanner that stops when it believes it is done must err on
+the safe side.
 """
 
 from __future__ import annotations
@@ -15,7 +22,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from reconstruction.evaluation.metrics import TriangleSurface, sample_surface, visible_mask
+from reconstruction.evaluation.metrics import (
+    TriangleSurface,
+    distances_to_points,
+    sample_surface,
+    visible_mask,
+)
 from reconstruction.surfaces.fused import FusedCloud
 from reconstruction.surfaces.topology import triangle_components
 
@@ -46,15 +58,26 @@ class Coverage:
     unseen_area_m2: float
 
 
+# A sample of the closed surface is held by the data within this of a fused point: the fused
+# cloud's spacing (1 mm) plus the Poisson surface's smoothing of it.
+SUPPORT_M = 0.0025
+
+
 def coverage_estimate(
-    fused: FusedCloud, camera_centres_W: Sequence[np.ndarray], samples: int = 50_000
+    fused: FusedCloud,
+    camera_centres_W: Sequence[np.ndarray],
+    samples: int = 50_000,
+    support_m: float = SUPPORT_M,
 ) -> Coverage:
-    """How much of the closed surface through the data the views saw (`camera_centres_W`: per
-    view a camera centre (3,) or its stereo eye centres (2, 3), as `visible_mask` takes them)."""
+    """How much of the closed surface through the data the views saw and measured
+    (`camera_centres_W`: per view a camera centre (3,) or its stereo eye centres (2, 3), as
+    `visible_mask` takes them; `support_m`: how near a fused point a seen part must be)."""
     if len(fused) < 100 or not len(camera_centres_W):
         return Coverage(0.0, math.nan)
     surface = closed_surface(fused)
-    seen = visible_mask(sample_surface(surface, samples), surface, camera_centres_W)
+    points = sample_surface(surface, samples)
+    held = distances_to_points(points.points, fused.points_W) <= support_m
+    seen = held & visible_mask(points, surface, camera_centres_W)
     v, t = surface.vertices, surface.triangles
     area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
     fraction = float(seen.mean())

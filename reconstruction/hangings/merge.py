@@ -7,14 +7,14 @@ The reference frame is the first hanging's: the merged model, and its metrics, a
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from reconstruction.common.errors import RefusedResultError, ScannerError
-from reconstruction.common.transforms import transform_points
+from reconstruction.common.transforms import invert, transform_points
 from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment, SeenSpace, align_pass
-from reconstruction.registration.filtering import FilteredCloud
+from reconstruction.registration.filtering import FilteredCloud, RemovePoints
 from reconstruction.registration.views import ViewCloud
 from reconstruction.surfaces.fused import fuse_clouds
 
@@ -77,3 +77,15 @@ def align_hangings(
         points.append(transform_points(alignment.T, fused.points_W))
         colors.append(fused.colors)
     return X_WC, tuple(alignments)
+
+
+def in_own_frames(
+    remove_points: RemovePoints, T_of: Sequence[np.ndarray], hanging_of: Mapping[int, int]
+) -> RemovePoints:
+    """The caller's filter for points given in the first hanging's frame: each view's points
+    are taken back to its own hanging's frame (T_of[h]: hanging h -> the first), where its
+    rod and the robot are."""
+    inverse = [invert(T) for T in T_of]
+    return lambda p_W, index: remove_points(  # noqa: E731
+        transform_points(inverse[hanging_of[index]], p_W), index
+    )

@@ -192,3 +192,31 @@ def filter_view(
         normals.copy(),
         FilterCounts(n_input, n_roi, n_voxel, n_hook, n_out),
     )
+
+
+def refiltered(
+    cloud: FilteredCloud, X_WC: np.ndarray, remove_points: RemovePoints
+) -> FilteredCloud:
+    """The cloud without the points `remove_points` rejects at another pose of the view (its
+    final one: the rod and the robot are where the corrected pose puts them, while the pose
+    the view was filtered with can be a centimetre off)."""
+    if not len(cloud):
+        return cloud
+    keep = apply_hook(remove_points, transform_points(X_WC, cloud.points_C), cloud.index)
+    if keep.all():
+        return cloud
+    dropped = int((~keep).sum())
+    counts = cloud.counts
+    return FilteredCloud(
+        cloud.index,
+        cloud.points_C[keep].copy(),
+        cloud.colors[keep].copy(),
+        cloud.normals_C[keep].copy(),
+        FilterCounts(
+            counts.input,
+            counts.after_roi,
+            counts.after_voxel,
+            counts.after_hook - dropped,
+            counts.after_outliers - dropped,
+        ),
+    )

@@ -20,6 +20,7 @@ from reconstruction.evaluation.metrics import (
 )
 from reconstruction.hangings.alignment import alignment_error
 from reconstruction.pipeline import ReconstructionResult
+from reconstruction.surfaces.fixture import points_on_fixture
 from scanner.configs.scan import ProcessingConfig
 from scanner.reconstruct.scan_views import Gathered
 
@@ -100,9 +101,12 @@ def hangings_report(result, views: Gathered, to_first) -> dict:
     return out
 
 
-def evaluate(result: ReconstructionResult, truth, surface, samples: int, truth_samples) -> dict:
+def evaluate(
+    result: ReconstructionResult, truth, surface, samples: int, truth_samples, fixtures=()
+) -> dict:
     """Metrics of every surface against the truth (`truth_samples`: from `observed_samples`),
-    and the hand-eye error before/after."""
+    the points on the fixture in each (`fixtures`: every hanging's rod line in the first
+    hanging's frame), and the hand-eye error before/after."""
     out: dict = {"surfaces": {}}
     results = {name: TriangleSurface(m.vertices, m.triangles) for name, m in result.meshes.items()}
     for name, mesh in results.items():
@@ -112,6 +116,10 @@ def evaluate(result: ReconstructionResult, truth, surface, samples: int, truth_s
     out["surfaces"]["fused_cloud"] = evaluate_surface(
         result.fused.points_W, surface, n_samples=samples, truth_samples=truth_samples
     )
+    points = {name: m.vertices for name, m in result.meshes.items()}
+    for name, p in {**points, "fused_cloud": result.fused.points_W}.items():
+        on = sum(points_on_fixture(p, surface.vertices, line) for line in fixtures)
+        out["surfaces"][name]["fixture_points"] = on
     before = handeye_error(result.X_FC_nominal, truth.X_FC)
     after = handeye_error(result.X_FC, truth.X_FC)
     out.update(after)
@@ -136,7 +144,10 @@ def truth_metrics(
     truth = views.truths[0]
     if truth_samples is None:
         truth_samples = observed_samples(views, processing, to_first)
-    metrics = evaluate(result, truth[0], truth[1], processing.metric_samples, truth_samples)
+    fixtures = [line.moved(T) for line, T in zip(views.fixtures, to_first or [], strict=False)]
+    metrics = evaluate(
+        result, truth[0], truth[1], processing.metric_samples, truth_samples, fixtures
+    )
     primary = metrics["surfaces"].get(processing.primary_surface)
     if primary is None:
         raise ScannerError(

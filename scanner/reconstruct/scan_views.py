@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +20,7 @@ from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.stereo.cloud import depth_image, view_cloud
 from reconstruction.stereo.params import StereoParams
 from reconstruction.stereo.rectification import Rectification, compute_rectification
+from reconstruction.surfaces.fixture import FixtureLine
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds
 from robots.models.workcell import keep_out_radius_m
 from scanner.configs.scan import ProcessingConfig, ScanConfig
@@ -131,6 +132,13 @@ def geometry_filter(
     return lambda points_W, index: keep(points_W, joints[index])
 
 
+def fixture_line(config: ScanConfig) -> FixtureLine:
+    """The rod the object hangs from: the vertical above the scan centre (in every hanging:
+    the cell holds the rod, the operator hangs the object anew from it)."""
+    cell = config.cell
+    return FixtureLine(tuple(cell.object_center_m), (0.0, 0.0, 1.0), cell.rod_radius_m)
+
+
 def with_roi_centre(config: ReconstructionConfig, centre: np.ndarray) -> ReconstructionConfig:
     """The region of interest around the scan centre unless the configuration placed it."""
     if config.filter.roi.center_m is not None:
@@ -154,6 +162,7 @@ class Gathered:
     scan_of: dict[int, int]
     truths: list  # per scan: (Truth, true surface, truth file) or None
     remove: object  # remove_points(points_W, index) for all scans
+    fixtures: list[FixtureLine] = field(default_factory=list)  # per hanging, its rod's line
 
 
 def gather_views(
@@ -185,6 +194,7 @@ def gather_views(
         out.skipped.extend({**d, "index": d["index"] + offset} for d in captured.skipped)
         out.joints.update({i + offset: q for i, q in captured.joints.items()})
         out.hangings.extend([i + offset for i in h] for h in scan.hangings)
+        out.fixtures.extend(fixture_line(scan.config) for _ in scan.hangings)
         out.scan_of.update({v.index + offset: k for v in captured.views})
         out.truths.append(load_truth_of(scan.root))
         filters.append(

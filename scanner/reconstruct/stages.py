@@ -234,7 +234,15 @@ def _reconstruct(
 
         with timer("reconstruct"):
             result = reconstruct_views(
-                views.views, X_FC, config, views.remove, hangings, filtered, on_stage, eyes_of
+                views.views,
+                X_FC,
+                config,
+                views.remove,
+                hangings,
+                filtered,
+                on_stage,
+                eyes_of,
+                views.fixtures,
             )
         truth_samples = sampling.result() if sampling is not None else None
 
