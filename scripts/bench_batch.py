@@ -33,7 +33,7 @@ def _scans(root: Path, count: int, views: int) -> list[Path]:
         scan_dir = root / f"scan{seed}"
         if not (scan_dir / "scan.yaml").is_file():
             config = replace(
-                with_overrides(ScanConfig(), views=views, seed=seed), reconstruct=False
+                with_overrides(ScanConfig(), views=views, seed=seed, hangings=1), reconstruct=False
             )
             run_scan(config, scan_dir)
         dirs.append(scan_dir)

@@ -1,7 +1,8 @@
 """Benchmark: whole-object models from several hangings.
 
 The bunny, teapot, spot and fandisk of the benchmark meshes (benchmark_data.py; 0.2 m), seeds
-0, 1, 2, each scanned with --hangings 2 (`--hangings N`) and the default error model, and one
+0, 1, 2, each scanned with --hangings auto (`--hangings N` forces N; `--operator random`: the
+worst-case operator) and the default error model, and one
 merge of two different objects that must be refused. Prints one JSON line: `cases_total`,
 `aligned` (verified and within 1 mm of the truth), the worst alignment errors, completeness,
 the coverage estimate's error against the truth (`coverage_estimate_excess_max`: the largest
@@ -23,6 +24,7 @@ from pathlib import Path
 from benchmark_data import MESHES, require
 
 from reconstruction.common.errors import RefusedResultError
+from scanner.commands.arguments import hangings_arg
 from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.reconstruct.merge import run_merge
 from scanner.scan.run import run_scan
@@ -67,13 +69,14 @@ def _excess(record: dict) -> float:
     )
 
 
-def _case(name: str, seed: int, out: Path, hangings: int) -> dict:
+def _case(name: str, seed: int, out: Path, hangings: int | str, operator: str) -> dict:
     config = with_overrides(
         ScanConfig(),
         object_spec=str(MESHES / FILES[name]),
         size_m=0.2,
         seed=seed,
         hangings=hangings,
+        operator=operator,
     )
     t0 = time.perf_counter()
     record: dict = {"object": name, "seed": seed}
@@ -85,6 +88,8 @@ def _case(name: str, seed: int, out: Path, hangings: int) -> dict:
     record.update({k: round(report[k], 4) for k in KEYS if k in report})
     record["wall_s"] = round(time.perf_counter() - t0, 1)
     record["passes"] = report.get("hangings", [])
+    record["hangings_used"] = max(len(record["passes"]), 1)
+    record["stop_reason"] = report.get("stop_reason")
     record["fixture_points"] = _fixture_points(report)
     record["coverage_estimate_excess"] = round(_excess(record), 4)
     verified = all(p.get("verified", True) for p in record["passes"])
@@ -96,7 +101,8 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--objects", default=",".join(FILES))
     parser.add_argument("--seeds", default="0,1,2")
-    parser.add_argument("--hangings", type=int, default=2)
+    parser.add_argument("--hangings", type=hangings_arg, default="auto")
+    parser.add_argument("--operator", choices=("instructed", "random"), default="instructed")
     args = parser.parse_args()
     require(MESHES, "bench_complete")
     objects = args.objects.split(",")
@@ -106,7 +112,7 @@ def main() -> None:
         for name in objects:
             for seed in seeds:
                 dirs[(name, seed)] = Path(tmp) / f"{name}-{seed}"
-                cases.append(_case(name, seed, dirs[(name, seed)], args.hangings))
+                cases.append(_case(name, seed, dirs[(name, seed)], args.hangings, args.operator))
                 print(json.dumps(cases[-1]), file=sys.stderr, flush=True)
         wrong = [d for (n, s), d in dirs.items() if s == seeds[0] and (d / "scan.yaml").is_file()]
         refused = None
@@ -118,7 +124,11 @@ def main() -> None:
                 refused = True
     done = [c for c in cases if "completeness_2mm" in c]
     out = {
+        "hangings": args.hangings,
+        "operator": args.operator,
         "cases_total": len(cases),
+        "median_hangings": statistics.median(c.get("hangings_used", 0) for c in cases),
+        "max_hangings_used": max(c.get("hangings_used", 0) for c in cases),
         "aligned": sum(bool(c["aligned"]) for c in cases),
         "alignment_error_mm_max": max(c.get("alignment_error_mm", 99.0) for c in cases),
         "alignment_error_deg_max": max(c.get("alignment_error_deg", 180.0) for c in cases),

@@ -89,7 +89,7 @@ def main() -> None:
         scan_dir = args.scan
         if scan_dir is None:
             require(BUNNY, "bench_handeye_basin")
-            config = with_overrides(ScanConfig(), object_spec=str(BUNNY), seed=0)
+            config = with_overrides(ScanConfig(), object_spec=str(BUNNY), seed=0, hangings=1)
             config = replace(config, reconstruct=False)
             scan_dir = run_scan(config, Path(tmp) / "scan").scan_dir
         scan = open_scan(scan_dir)

@@ -32,7 +32,9 @@ CASES = ((0, (), 0), (1, (3.0, 10.0), 1), (2, (5.0, 12.5), 2))
 
 
 def _scan(root: Path, seed: int, intruders: tuple[float, ...], path_seed: int) -> dict:
-    config = with_overrides(ScanConfig(), seed=seed, monitor=True, intruder_start_s=intruders)
+    config = with_overrides(
+        ScanConfig(), seed=seed, monitor=True, intruder_start_s=intruders, hangings=1
+    )
     config = replace(
         config, reconstruct=False, monitor=replace(config.monitor, intruder_seed=path_seed)
     )

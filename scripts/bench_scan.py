@@ -47,7 +47,9 @@ def main() -> None:
     parser.add_argument("--views", type=int, default=24)
     parser.add_argument("--object", default="vase")
     args = parser.parse_args()
-    config = with_overrides(ScanConfig(), object_spec=args.object, views=args.views, seed=0)
+    config = with_overrides(
+        ScanConfig(), object_spec=args.object, views=args.views, seed=0, hangings=1
+    )
     with tempfile.TemporaryDirectory() as tmp:
         cpu_start = cpu_seconds()
         result = run_scan(config, Path(tmp) / "scan")

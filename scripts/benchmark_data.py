@@ -36,11 +36,16 @@ def add_scan_options(parser: argparse.ArgumentParser, scan_root_help: str) -> No
 
 
 def mesh_scan(mesh_file: str, scan_dir: Path, views: int) -> Path:
-    """A captured (not reconstructed) scan of a benchmark mesh at 0.2 m, seed 0; reused when
-    `scan_dir` holds one already."""
+    """A captured (not reconstructed) one-hanging scan of a benchmark mesh at 0.2 m, seed 0;
+    reused when `scan_dir` holds one already."""
     if not (scan_dir / "scan.yaml").is_file():
         config = with_overrides(
-            ScanConfig(), object_spec=str(MESHES / mesh_file), size_m=0.2, views=views, seed=0
+            ScanConfig(),
+            object_spec=str(MESHES / mesh_file),
+            size_m=0.2,
+            views=views,
+            seed=0,
+            hangings=1,
         )
         run_scan(replace(config, reconstruct=False), scan_dir)
     return scan_dir

@@ -110,7 +110,7 @@ def vase12_scan_dir(run_dir) -> Path:
     )
 
     def build(out: Path) -> None:
-        config = replace(with_overrides(ScanConfig(), views=12, seed=0), camera=half)
+        config = replace(with_overrides(ScanConfig(), views=12, seed=0, hangings=1), camera=half)
         run_scan(replace(config, reconstruct=False), out)
 
     return built_once(run_dir, "vase12-scan", build)

@@ -103,7 +103,8 @@ def test_help_defaults_follow_the_record(monkeypatch):
     # The default is read from the record when help is printed, not a copied literal.
     import scanner.configs.scan
 
-    changed = replace(ScanConfig(), hangings=ScanConfig().hangings + 2)
+    changed = replace(ScanConfig(), hangings=3)
+    assert ScanConfig().hangings != changed.hangings
     monkeypatch.setattr(scanner.configs.scan, "ScanConfig", lambda: changed)
     assert f"(default {changed.hangings})" in _help(_commands()["scan"], "--hangings")
 
@@ -144,7 +145,11 @@ def _write(path, text):
     [
         ("views:\n  cuont: 3\n", "views: unknown key(s) cuont (did you mean count?); valid keys: "),
         ("views:\n  count: 0\n", "views.count: at least 1 view is needed, got 0"),
-        ("hangings: 9\n", "hangings: expected an integer in [1, 6], got 9"),
+        ("hangings: 9\n", "hangings: expected 'auto' or an integer in [1, 6], got 9"),
+        (
+            "hangings: sometimes\n",
+            "hangings: expected 'auto' or an integer in [1, 6], got 'sometimes'",
+        ),
         (
             "processing:\n  reconstruction:\n    icp:\n      enabled: 3\n",
             "processing.reconstruction.icp.enabled: expected true or false, got 3",

@@ -133,6 +133,7 @@ CASES = [
     (["scan"], "--out", _paths(OUT_PATHS)),
     (["scan"], "--seed", _ints(0, 2**32 - 1)),
     (["scan"], "--hangings", _ints(1, 6)),
+    (["scan"], "--operator", _names(["instructed", "random"])),
     (["scan"], "--max-extra-views", _ints(0, 1000)),
     (["scan"], "--config", _paths(PATHS)),
     (["scan"], "--calibration", _paths(PATHS)),

@@ -37,6 +37,7 @@ def test_the_default_example_is_the_built_in_default():
                 "driver": "my_cell.rx60:connect",
                 "calibration_file": "calibration/calibration.yaml",
                 "views.radius_m": 0.5,
+                "hangings": 1,
             },
         ),
         ("monitor.yaml", {"monitor.enabled": True, "monitor.intruder_start_s": (4.0, 20.0)}),

@@ -53,6 +53,7 @@ def test_a_scan_adds_the_next_best_views_it_was_allowed(tmp_path):
                 "camera": {"width_px": 640, "height_px": 480, "focal_px": 660.0},
                 "views": {"count": 4, "max_extra_views": 2, "min_gain": 0.0},
                 "object": "bracket",
+                "hangings": 1,
                 "reconstruct": False,
             }
         )

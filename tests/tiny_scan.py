@@ -15,6 +15,7 @@ TINY_PROCESSING = {
 }
 
 TINY_SCAN = {
+    "hangings": 1,
     "camera": {"width_px": 320, "height_px": 240, "focal_px": 330.0},
     "views": {"count": 5, "candidates": 200, "roll_candidates": 4},
     "planner": {"roadmap_milestones": 120, "prm_build_time_s": 20.0},

@@ -71,6 +71,21 @@ def rotation_about(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     return rotvec_to_matrix(axis / np.linalg.norm(axis) * angle_rad)
 
 
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation R (3x3) with R @ a parallel to b (a, b: any length but zero);
+    opposite vectors: half a turn about an axis perpendicular to both."""
+    a = np.asarray(a, float) / np.linalg.norm(a)
+    b = np.asarray(b, float) / np.linalg.norm(b)
+    axis = np.cross(a, b)
+    s, c = float(np.linalg.norm(axis)), float(a @ b)
+    if s > 1e-9:
+        return rotation_about(axis, math.atan2(s, c))
+    if c > 0:
+        return np.eye(3)
+    other = np.eye(3)[int(np.argmin(np.abs(a)))]
+    return rotation_about(np.cross(a, other), math.pi)
+
+
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     """Inverse of `rotvec_to_matrix`; near pi it falls back to scipy's robust conversion."""
     c = (np.trace(R) - 1) / 2

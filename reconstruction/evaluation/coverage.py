@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from reconstruction.evaluation.metrics import (
+    SurfaceSamples,
     TriangleSurface,
     distances_to_points,
     sample_surface,
@@ -63,6 +64,34 @@ class Coverage:
 SUPPORT_M = 0.0025
 
 
+@dataclass(frozen=True, eq=False)
+class SeenSurface:
+    """The closed surface through the data, samples on it, and which of them the views saw
+    and the data hold (what the next view or the next hanging should look at is the rest)."""
+
+    surface: TriangleSurface
+    samples: SurfaceSamples
+    seen: np.ndarray  # (n,) bool
+
+    @property
+    def fraction(self) -> float:
+        return float(self.seen.mean())
+
+
+def seen_surface(
+    fused: FusedCloud,
+    camera_centres_W: Sequence[np.ndarray],
+    samples: int = 50_000,
+    support_m: float = SUPPORT_M,
+) -> SeenSurface:
+    """The closed surface of `fused`, sampled, with the samples some view saw (facing,
+    unoccluded) that lie within `support_m` of a fused point."""
+    surface = closed_surface(fused)
+    points = sample_surface(surface, samples)
+    held = distances_to_points(points.points, fused.points_W) <= support_m
+    return SeenSurface(surface, points, held & visible_mask(points, surface, camera_centres_W))
+
+
 def coverage_estimate(
     fused: FusedCloud,
     camera_centres_W: Sequence[np.ndarray],
@@ -74,11 +103,7 @@ def coverage_estimate(
     `visible_mask` takes them; `support_m`: how near a fused point a seen part must be)."""
     if len(fused) < 100 or not len(camera_centres_W):
         return Coverage(0.0, math.nan)
-    surface = closed_surface(fused)
-    points = sample_surface(surface, samples)
-    held = distances_to_points(points.points, fused.points_W) <= support_m
-    seen = held & visible_mask(points, surface, camera_centres_W)
-    v, t = surface.vertices, surface.triangles
+    seen = seen_surface(fused, camera_centres_W, samples, support_m)
+    v, t = seen.surface.vertices, seen.surface.triangles
     area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
-    fraction = float(seen.mean())
-    return Coverage(fraction, float(area.sum()) * (1.0 - fraction))
+    return Coverage(seen.fraction, float(area.sum()) * (1.0 - seen.fraction))

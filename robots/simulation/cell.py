@@ -14,7 +14,7 @@ from robots.models import camera_tool
 from robots.models.objects import ObjectMesh, mesh_fingerprint, resolve_object, write_textured_obj
 from robots.models.rx60 import RX60
 from robots.models.workcell import Workcell, WorkcellConfig, build_workcell, placed_object
-from robots.simulation.operator import hung_pose
+from robots.simulation.operator import hung_pose, rehung_pose
 from robots.simulation.robot import SimulatedRobot
 from robots.simulation.stereo_camera import SimulatedStereoCamera
 from robots.simulation.truth import ErrorModel, Truth, sample_truth
@@ -57,6 +57,7 @@ def create_simulation(
     meshcat=None,
     extras: Sequence[Callable] = (),
     hanging: int = 0,
+    X_WO: np.ndarray | None = None,
 ) -> Simulation:
     """Build the true world for `object_spec` (built-in name or mesh path) and its error model.
 
@@ -67,7 +68,8 @@ def create_simulation(
     if X_FC_nominal is None:
         X_FC_nominal = camera_tool.nominal_X_FC(stereo.baseline_m)
     mesh = None if object_spec is None else resolve_object(object_spec, cell.object_size_m)
-    X_WO = hung_pose(cell.X_WO, error_model.seed, hanging)
+    if X_WO is None:  # else the pose the operator hung it in (a resumed scan's truth file)
+        X_WO = hung_pose(cell.X_WO, error_model.seed, hanging)
     truth = sample_truth(error_model, X_FC_nominal, stereo, X_WO)
     sim_robot = SimulatedRobot(robot, truth.joint_offsets_rad, q0)
     return _assemble(cell, mesh, truth, sim_robot, meshcat, extras)
@@ -101,8 +103,12 @@ def _assemble(
     return Simulation(workcell, truth, sim_robot, camera, mesh)
 
 
-def rehang(sim: Simulation, hanging: int, meshcat=None) -> Simulation:
-    """The same cell, robot (where it stands) and errors with the object hung anew."""
+def rehang(
+    sim: Simulation, hanging: int, meshcat=None, operator: str = "random", up_W=None
+) -> Simulation:
+    """The same cell, robot (where it stands) and errors with the object hung anew by the
+    operator (robots.simulation.operator), asked to bring `up_W` to the top (None: no
+    instruction)."""
     cell = sim.workcell.config
-    X_WO = hung_pose(cell.X_WO, sim.truth.seed, hanging)
+    X_WO = rehung_pose(sim.truth.X_WO, cell.X_WO, sim.truth.seed, hanging, operator, up_W)
     return _assemble(cell, sim.object_mesh, replace(sim.truth, X_WO=X_WO), sim.robot, meshcat)

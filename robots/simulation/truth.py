@@ -42,8 +42,15 @@ class ErrorModel:
     handeye_rotation_rad: float = non_negative(math.radians(1.0))
     joint_offset_std_rad: float = non_negative(math.radians(0.01))
     image_noise_std: float = non_negative(2.0)
+    # Who re-hangs the object between hangings (robots.simulation.operator): "instructed"
+    # follows the scanner's instruction with a person's error, "random" ignores it.
+    operator: str = "instructed"
 
     def __post_init__(self) -> None:
+        if self.operator not in ("instructed", "random"):
+            raise ScannerError(
+                f"error_model.operator: expected 'instructed' or 'random', got {self.operator!r}"
+            )
         check_fields("error_model", self)
 
 
@@ -123,3 +130,29 @@ def load_truth(path: Path) -> tuple[Truth, dict]:
     except (OSError, yaml.YAMLError, KeyError, TypeError, AttributeError) as e:
         raise ScannerError(f"{path}: not a readable truth file ({e})") from None
     return truth, d
+
+
+def record_hung_pose(path: Path, hanging: int, X_WO: np.ndarray) -> None:
+    """Write the object's true pose in pass `hanging` into the truth file (`X_WO_hangings`):
+    where the operator actually hung it (only the evaluation, and a resumed simulation, read
+    it)."""
+    data = yaml.safe_load(Path(path).read_text())
+    poses = list(data.get("X_WO_hangings", [data["X_WO"]]))
+    if hanging < len(poses):
+        poses[hanging] = np.asarray(X_WO, float).tolist()
+    elif hanging == len(poses):
+        poses.append(np.asarray(X_WO, float).tolist())
+    else:
+        raise ScannerError(f"{path}: hanging {hanging + 1} recorded before hanging {len(poses)}")
+    data["X_WO_hangings"] = poses
+    tmp = Path(path).with_suffix(".tmp")
+    tmp.write_text(yaml.safe_dump(data, sort_keys=False))
+    tmp.rename(path)
+
+
+def hung_pose_of(path: Path, hanging: int) -> np.ndarray | None:
+    """The recorded true pose of pass `hanging`, None when the file holds none for it."""
+    if not Path(path).is_file():
+        return None
+    poses = yaml.safe_load(Path(path).read_text()).get("X_WO_hangings", [])
+    return np.asarray(poses[hanging], float) if hanging < len(poses) else None

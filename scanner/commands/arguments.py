@@ -95,6 +95,16 @@ def positive_float(text: str) -> float:
     return v
 
 
+def hangings_arg(text: str) -> int | str:
+    """--hangings: 'auto' or a count (the configuration checks its range)."""
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 'auto' or an integer, got '{text}'") from None
+
+
 def seconds_list(text: str) -> tuple[float, ...]:
     """Comma-separated times in seconds, each finite and >= 0."""
     values = []

@@ -16,6 +16,7 @@ from scanner.commands.arguments import (
     add_driver_argument,
     add_output_arguments,
     add_seed_argument,
+    hangings_arg,
     name_arg,
     path_arg,
     positive_float,
@@ -84,11 +85,22 @@ def add_scan_parser(sub) -> None:
     add_config_option(
         scan,
         "--hangings",
-        type=int,
+        type=hangings_arg,
+        metavar="N|auto",
         help="passes over the object, re-hung between them (the simulator turns it; on "
-        "hardware the operator is asked), aligned and merged into one model "
-        "(default %(config_default)s)",
+        "hardware the operator is asked), aligned and merged into one model; auto: another "
+        "hanging, turned as the scanner computes, until coverage_target of the surface is "
+        "seen (at most max_hangings) (default %(config_default)s)",
         config=ConfigDefault(SCAN_CONFIG, "hangings"),
+    )
+    add_config_option(
+        scan,
+        "--operator",
+        choices=("instructed", "random"),
+        help="simulation: who re-hangs the object; instructed follows the scanner's "
+        "instruction with a person's 10-25 deg error, random turns it 90-180 deg whatever "
+        "was asked (the worst case) (default %(config_default)s)",
+        config=ConfigDefault(SCAN_CONFIG, "error_model.operator"),
     )
     scan.add_argument(
         "--monitor",
@@ -184,6 +196,7 @@ def run_scan_command(args: argparse.Namespace) -> int:
         max_extra_views=args.max_extra_views,
         monitor=args.monitor or None,
         intruder_start_s=args.intruder,
+        operator=args.operator,
     )
     if args.plan_only and (args.resume is not None or args.meshcat):
         raise ScannerError("--plan-only plans a new scan: do not give --resume or --meshcat")

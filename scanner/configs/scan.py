@@ -10,7 +10,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from planners.planner import PlannerConfig
-from reconstruction.common.checks import check_fields, integer, non_negative, positive
+from reconstruction.common.checks import check_fields, fraction, integer, non_negative, positive
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.yaml_files import read_yaml
 from reconstruction.pipeline import ReconstructionConfig
@@ -70,6 +70,7 @@ class ProcessingConfig:
 
 
 MAX_HANGINGS = 6
+AUTO = "auto"
 
 
 @dataclass(frozen=True)
@@ -94,13 +95,39 @@ class ScanConfig:
     # simulation.
     driver: str | None = None
     # Passes over the object, re-hung (turned) between them; the passes are aligned and merged
-    # into one model. One hanging never sees the top of a hung object.
-    hangings: int = integer(1, maximum=MAX_HANGINGS)
+    # into one model. One hanging never sees the top of a hung object. "auto": after each
+    # hanging the scanner estimates what it has not seen and asks for another hanging, turned
+    # as it computes, until `coverage_target` is reached, `max_hangings` are done, or a
+    # hanging adds less than `min_hanging_gain` of the surface. A number forces that many.
+    hangings: int | str = AUTO
+    coverage_target: float = fraction(0.97)
+    max_hangings: int = integer(4, maximum=MAX_HANGINGS)
+    min_hanging_gain: float = fraction(0.01)
     # The static-camera cell monitor (off by default): intrusions pause the scan.
     monitor: MonitorSettings = field(default_factory=MonitorSettings)
 
     def __post_init__(self) -> None:
+        h = self.hangings
+        if h != AUTO and (
+            isinstance(h, bool) or not isinstance(h, int) or not 1 <= h <= MAX_HANGINGS
+        ):
+            raise ScannerError(
+                f"hangings: expected '{AUTO}' or an integer in [1, {MAX_HANGINGS}], got {h!r}"
+            )
+        if not 0 < self.coverage_target <= 1:
+            raise ScannerError(
+                f"coverage_target: expected a fraction in (0, 1], got {self.coverage_target}"
+            )
         check_fields("scan", self)
+
+    @property
+    def auto_hangings(self) -> bool:
+        return self.hangings == AUTO
+
+    @property
+    def first_hangings(self) -> int:
+        """How many hangings are planned at the start (auto: one, more when needed)."""
+        return 1 if self.auto_hangings else int(self.hangings)
 
     @property
     def scan_center_m(self) -> tuple[float, float, float]:
@@ -144,10 +171,11 @@ def with_overrides(
     seed: int | None = None,
     calibration_file: str | None = None,
     driver: str | None = None,
-    hangings: int | None = None,
+    hangings: int | str | None = None,
     max_extra_views: int | None = None,
     monitor: bool | None = None,
     intruder_start_s: tuple[float, ...] | None = None,
+    operator: str | None = None,
 ) -> ScanConfig:
     """Command-line flags win over the file; each override is validated like the file, and
     an error names the flag."""
@@ -166,6 +194,9 @@ def with_overrides(
         )
     if seed is not None:
         model = for_flag("--seed", lambda: replace(config.error_model, seed=seed))
+        config = replace(config, error_model=model)
+    if operator is not None:
+        model = for_flag("--operator", lambda: replace(config.error_model, operator=operator))
         config = replace(config, error_model=model)
     if calibration_file is not None:
         config = replace(config, calibration_file=calibration_file)

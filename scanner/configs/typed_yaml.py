@@ -32,8 +32,18 @@ def _convert(tp, value, where: str, keys: str):
         args = typing.get_args(tp)
         if value is None and type(None) in args:
             return None
-        (inner,) = [a for a in args if a is not type(None)]
-        return _convert(inner, value, where, keys)
+        inner = [a for a in args if a is not type(None)]
+        if len(inner) == 1:
+            return _convert(inner[0], value, where, keys)
+        # A choice of types (e.g. a count or a word): the first that takes the value; the
+        # record's own check then says what is allowed.
+        for tp_k in inner:
+            try:
+                return _convert(tp_k, value, where, keys)
+            except ScannerError:
+                continue
+        names = " or ".join(getattr(t, "__name__", str(t)) for t in inner)
+        raise ScannerError(f"{_at(where, keys)}: expected {names}, got {value!r}")
     if dataclasses.is_dataclass(tp):
         return _from_dict(tp, value, where, keys)
     at = _at(where, keys)

@@ -176,10 +176,10 @@ def plan_scan(config: ScanConfig, world: ScanWorld) -> ScanPlan:
         plan, views = None, []
     viewpoints: list[PlannedViewpoint] = []
     q_now = q_home
-    count = len(views) // config.hangings
+    count = len(views) // config.first_hangings
     dropped = _dropped(world, config, plan, q_home) if plan is not None else unreachable
     kinematics = Kinematics()
-    for p in range(config.hangings):
+    for p in range(config.first_hangings):
         todo = views[p * count : (p + 1) * count]
         first = 1 + sum(v.order is not None for v in viewpoints)
         visited, q_now = _plan_pass(world, todo, p, q_now, first, kinematics)
@@ -189,7 +189,7 @@ def plan_scan(config: ScanConfig, world: ScanWorld) -> ScanPlan:
         tuple(viewpoints),
         np.asarray(config.scan_center_m, float),
         keep_out_radius_m(config.cell),
-        config.hangings,
+        config.first_hangings,
         config.views.max_extra_views,
     )
 

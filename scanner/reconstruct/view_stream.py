@@ -120,6 +120,12 @@ class ViewStream:
         finally:
             self._slots.release()
 
+    def so_far(self) -> StreamedViews:
+        """What the workers made of every capture submitted so far (waits for them)."""
+        for f in list(self._futures):
+            f.result()
+        return self._result
+
     def finish(self) -> StreamedViews:
         """Wait for every submitted capture; a programming error in the worker is raised here."""
         self._pool.shutdown(wait=True)

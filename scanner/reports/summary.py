@@ -40,6 +40,33 @@ def _hangings_lines(report: dict) -> list[str]:
     return lines
 
 
+def _decision_lines(report: dict) -> list[str]:
+    """With `hangings: auto`: per hanging the coverage the scanner estimated before and after
+    it, why another was asked for and the instruction given, and why it stopped."""
+    decisions = report.get("hanging_decisions")
+    if not decisions:
+        return []
+    lines = [
+        "",
+        "## Hangings asked for (hangings: auto)",
+        "",
+        "| hanging | coverage before | coverage after | next hanging asked because | instruction |",
+        "|---|---|---|---|---|",
+    ]
+    for d in decisions:
+        nxt = d.get("next", {})
+        words = nxt.get("words", "-")
+        if "picture" in nxt:
+            words += f" ([picture]({nxt['picture'].removeprefix('results/')}))"
+        lines.append(
+            f"| {d['hanging']} | {_fmt(d['coverage_before'])} | {_fmt(d['coverage_after'])} | "
+            f"{nxt.get('asked_because', '-')} | {words} |"
+        )
+    if report.get("stop_reason"):
+        lines += ["", f"Stopped asking for hangings: {report['stop_reason']}."]
+    return lines
+
+
 def handeye_warning(report: dict) -> str | None:
     """The warning for a hand-eye correction that did not converge (None when it did or did
     not run)."""
@@ -231,6 +258,7 @@ def write_summary(report: dict, out: Path) -> Path:
         ]
     lines += _surface_lines(report)
     lines += _hangings_lines(report)
+    lines += _decision_lines(report)
     lines += _handeye_lines(report)
     if "outputs" in report:
         lines += ["", "## Files", ""] + [f"- `{p}`" for p in report["outputs"].values()]

@@ -4,6 +4,7 @@ each hanging's planned ones, and the runs summed up."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from contextlib import suppress
 
@@ -12,13 +13,17 @@ import numpy as np
 from planners.tour import Tour, plan_tour
 from reconstruction.common.errors import StorageError
 from robots.models.kinematics import Kinematics
+from robots.simulation.truth import record_hung_pose
 from scanner.configs.scan import ScanConfig
 from scanner.monitor.cell_monitor import MonitorStoppedError
 from scanner.monitor.scan_monitor import ScanMonitor
 from scanner.reconstruct.scan_views import model_so_far
 from scanner.reconstruct.view_stream import ViewStream, with_stream
+from scanner.reports.rehang_picture import write_rehang_picture
+from scanner.scan.auto_hangings import HangingAssessor, decide
 from scanner.scan.decision import DecisionMaker, FixedViewList, RunSummary
 from scanner.scan.next_best_view import CoverageModel
+from scanner.scan.next_hanging import instruction, next_best_hanging
 from scanner.scan.viewpoints import planned_view
 from scanner.scan.world import ScanWorld, WatchedRobot, live_cloud
 from scanner.scan_dir.captures import CaptureStore
@@ -72,6 +77,7 @@ class HangingRunner:
         self.machine: DecisionMaker | None = None
         self.abort_requested = False
         self.monitor = ScanMonitor(config.monitor) if config.monitor.enabled else None
+        self.assessor: HangingAssessor | None = None
 
     def request_abort(self) -> None:
         self.abort_requested = True
@@ -79,14 +85,16 @@ class HangingRunner:
             self.machine.request_abort()
 
     def passes(self, hangings: tuple[tuple[int, ...], ...], first: int) -> RunSummary:
+        """Every hanging from `first` on (a resumed scan: the one it stopped in; a pending
+        re-hang is asked for again); with `hangings: auto`, more hangings while the model is
+        not complete."""
         self.hangings = [list(h) for h in hangings]
         summaries = []
-        for hanging in range(first, len(hangings)):
-            if hanging > first:
-                with self.timer("rehang"):
-                    self.world = self.world.rehang(hanging, len(hangings), self.viewer)
-                self.store.update_manifest(hanging=hanging)
-                log.info("re-hung the object for hanging %d of %d", hanging + 1, len(hangings))
+        hanging = first
+        while hanging < len(self.hangings):
+            manifest = self.store.read_manifest()
+            if hanging > first or manifest.get("pending_rehang") == hanging:
+                self._rehang(hanging, manifest)
             if self.monitor is not None:
                 with self.timer("monitor_start"):
                     self.monitor.start(self.world)
@@ -96,7 +104,99 @@ class HangingRunner:
             summaries += self._extra_views(hanging)
             if self._aborted(summaries):
                 break
+            if self.config.auto_hangings and hanging == len(self.hangings) - 1:
+                self._after_hanging(hanging)
+            hanging += 1
         return _combined(summaries)
+
+    def _rehang(self, hanging: int, manifest: dict) -> None:
+        request = manifest.get("hanging_requests", {}).get(str(hanging))
+        with self.timer("rehang"):
+            self.world = self.world.rehang(
+                hanging, self.config.error_model.operator, request, self.viewer
+            )
+        if self.world.sim is not None:
+            record_hung_pose(self.store.root / "truth.yaml", hanging, self.world.sim.truth.X_WO)
+        self.store.update_manifest(hanging=hanging, pending_rehang=None)
+        log.info("re-hung the object for hanging %d", hanging + 1)
+
+    def _after_hanging(self, hanging: int) -> None:
+        """Estimate what the hangings so far have seen; below the target, plan the next
+        hanging and record the instruction (the loop then asks for it)."""
+        manifest = self.store.read_manifest()
+        journal = list(manifest.get("hanging_log", []))
+        if any(entry["hanging"] == hanging + 1 for entry in journal):
+            return  # decided before an interruption: the pending re-hang stands
+        if self.assessor is None:
+            self.assessor = HangingAssessor(open_scan(self.store.root), self.stream)
+        with self.timer("coverage_check"):
+            captured = set(self.store.captured_indices())
+            assessment = self.assessor.assess(self.hangings, hanging, captured)
+        coverage = [entry["coverage_after"] for entry in journal] + [assessment.fraction]
+        decision = decide(self.config, coverage)
+        entry = {
+            "hanging": hanging + 1,
+            "coverage_before": coverage[-2] if len(coverage) > 1 else 0.0,
+            "coverage_after": assessment.fraction,
+            "quick_alignment_verified": assessment.verified,
+        }
+        log.info("after hanging %d: coverage %.3f; %s", hanging + 1, coverage[-1], decision.reason)
+        if not decision.another:
+            self.store.update_manifest(hanging_log=[*journal, entry], stop_reason=decision.reason)
+            return
+        with self.timer("next_hanging"):
+            request = self._request(hanging + 1, assessment.seen)
+        if request is None:
+            reason = f"nothing left unseen that another hanging would show ({decision.reason})"
+            self.store.update_manifest(hanging_log=[*journal, entry], stop_reason=reason)
+            return
+        entry["next"] = {"asked_because": decision.reason, **request}
+        self._add_hanging(hanging + 1, request, [*journal, entry])
+
+    def _request(self, hanging: int, seen) -> dict | None:
+        """The instruction for pass `hanging`: the next-best turn, in words and a picture."""
+        centre = np.array(self.config.scan_center_m)
+        planned = self.hangings[0][: self._per_hanging()]
+        directions = np.array([v.direction for v in self.views if v.index in set(planned)])
+        choice = next_best_hanging(seen, centre, self.config.views.radius_m, directions)
+        if choice is None or choice.gain <= 0:
+            return None
+        name = f"rehang_{hanging + 1}.png"
+        self.store.results_dir.mkdir(exist_ok=True)
+        picture = self.store.results_dir / name
+        write_rehang_picture(seen, choice.up_W, choice.clamp_W, centre, hanging, picture)
+        return {
+            "up_W": [float(x) for x in choice.up_W],
+            "clamp_W": [float(x) for x in choice.clamp_W],
+            "expected_gain": choice.gain,
+            "words": instruction(choice, hanging, str(picture)),
+            "picture": f"results/{name}",
+        }
+
+    def _per_hanging(self) -> int:
+        return int(self.store.read_manifest().get("views_per_hanging", len(self.hangings[0])))
+
+    def _add_hanging(self, hanging: int, request: dict, journal: list) -> None:
+        """The next pass's views (the first hanging's planned ones, numbered on) and the
+        instruction, recorded before anything moves (a resume asks for it again)."""
+        base = max(v.index for v in self.views) + 1
+        planned = set(self.hangings[0][: self._per_hanging()])
+        new = [
+            dataclasses.replace(v, index=base + k)
+            for k, v in enumerate(v for v in self.views if v.index in planned)
+        ]
+        self.views += new
+        self.hangings.append([v.index for v in new])
+        requests = {**self.store.read_manifest().get("hanging_requests", {}), str(hanging): request}
+        self.store.update_manifest(
+            viewpoints=views_to_manifest(self.views),
+            hangings=self.hangings,
+            pose_count=len(self.views),
+            hanging_requests=requests,
+            hanging_log=journal,
+            pending_rehang=hanging,
+        )
+        log.info("asking for hanging %d: %s", hanging + 1, request["words"])
 
     def _aborted(self, summaries: list[RunSummary]) -> bool:
         return summaries[-1].state.value == "aborted" or self.abort_requested

@@ -16,13 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from reconstruction.evaluation.coverage import closed_surface
-from reconstruction.evaluation.metrics import (
-    SurfaceSamples,
-    sample_surface,
-    visibility,
-    visible_mask,
-)
+from reconstruction.evaluation.coverage import seen_surface
+from reconstruction.evaluation.metrics import SurfaceSamples, visibility, visible_mask
 from reconstruction.surfaces.fused import FusedCloud
 
 # Candidates closer than this to a view already taken add little.
@@ -41,9 +36,8 @@ class CoverageModel:
     def __init__(
         self, fused: FusedCloud, camera_centres_W: Sequence[np.ndarray], samples: int = 20_000
     ) -> None:
-        self.surface = closed_surface(fused)
-        self.samples = sample_surface(self.surface, samples)
-        self.seen = visible_mask(self.samples, self.surface, camera_centres_W)
+        seen = seen_surface(fused, camera_centres_W, samples)
+        self.surface, self.samples, self.seen = seen.surface, seen.samples, seen.seen
 
     @property
     def coverage(self) -> float:

@@ -18,7 +18,7 @@ from reconstruction.common.stage_timer import StageTimer
 from robots.models.kinematics import Kinematics
 from robots.simulation.cell import Simulation, object_vertices_W
 from robots.simulation.operator import hung_pose
-from robots.simulation.truth import save_truth
+from robots.simulation.truth import hung_pose_of, save_truth
 from scanner.configs.scan import ScanConfig, scan_config_to_dict
 from scanner.monitor.scan_monitor import intruders_truth
 from scanner.reconstruct.stages import holds_reconstruction, run_reconstruct
@@ -97,7 +97,7 @@ def new_scan_views(config: ScanConfig, world: ScanWorld) -> tuple[ViewPlan, list
     count = len(plan.views)
     views = [
         dataclasses.replace(v, index=p * count + v.index)
-        for p in range(config.hangings)
+        for p in range(config.first_hangings)
         for v in plan.views
     ]
     return plan, views
@@ -110,19 +110,22 @@ def _start_new(
     also which views belong to each hanging (view k of hanging p is number p * count + k)."""
     plan, views = new_scan_views(config, world)
     count = len(plan.views)
-    hangings = tuple(tuple(p * count + v.index for v in plan.views) for p in range(config.hangings))
+    hangings = tuple(
+        tuple(p * count + v.index for v in plan.views) for p in range(config.first_hangings)
+    )
     plan_info = {
         "reachable_fraction": plan.reachable_fraction,
         "dropped_views": [{"direction": d.direction, "reason": d.reason} for d in plan.dropped],
         "hangings": [list(h) for h in hangings],
         "reachable_directions": plan.reachable_directions.tolist(),
         "hanging": 0,
+        "views_per_hanging": count,
     }
     manifest = new_manifest(config, world.stereo, world.X_FC, views, plan_info)
     store = CaptureStore.create(out_dir, manifest, force)
     if world.sim is not None:
         intruders = intruders_truth(config.monitor) if config.monitor.enabled else []
-        _write_truth(store, world.sim, config.hangings, intruders)
+        _write_truth(store, world.sim, config.first_hangings, intruders)
     return store, views, hangings
 
 
@@ -157,6 +160,9 @@ def _scan_report(
         "skipped": skipped,
         "views_dropped_unreachable": len(manifest.get("dropped_views", [])),
         "reachable_fraction": manifest.get("reachable_fraction"),
+        "hangings_asked": config.hangings,
+        "hanging_decisions": manifest.get("hanging_log", []),
+        "stop_reason": manifest.get("stop_reason"),
         "robot_motion_s": summary.robot_motion_s,
         "estimated_tour_s": tour_cost_s,
         "wall_s": time.perf_counter() - wall0,
@@ -206,7 +212,8 @@ def run_scan(
     hanging = saved.hanging if saved else 0
     with timer("setup"):
         viewer = meshcat_if(meshcat)
-        world = setup_world(config, viewer, hanging)
+        X_WO = hung_pose_of(saved.root / "truth.yaml", hanging) if saved else None
+        world = setup_world(config, viewer, hanging, X_WO)
         live = _live_view(world, viewer)
     if saved is None:
         with timer("viewpoints"):

@@ -37,20 +37,28 @@ class ScanWorld:
     shown_cell: Workcell | None  # the cell Meshcat shows (built with meshcat=)
     hardware: Hardware | None = None
 
-    def rehang(self, hanging: int, hangings: int, meshcat=None) -> ScanWorld:
-        """The world after the object was hung anew for pass `hanging` (of `hangings`)."""
+    def rehang(
+        self, hanging: int, operator: str, request: dict | None = None, meshcat=None
+    ) -> ScanWorld:
+        """The world after the object was hung anew for pass `hanging`: the simulated operator
+        turns it (`operator`), hardware asks the person. `request`: the scanner's instruction
+        (`up_W`, `words`, `picture`), None for a fixed number of hangings."""
+        up_W = None if request is None else np.asarray(request["up_W"], float)
         if self.sim is not None:
-            sim = rehang(self.sim, hanging, meshcat)
+            sim = rehang(self.sim, hanging, meshcat, operator, up_W)
             return replace(self, camera=sim.camera, sim=sim, shown_cell=sim.workcell)
         if self.hardware is None or self.hardware.request_rehang is None:
             raise ScannerError(
                 "this driver cannot ask for a re-hang (Hardware.request_rehang is None): scan "
-                "one hanging per run and combine the scans with scanner merge"
+                "one hanging per run (hangings: 1) and combine the scans with scanner merge"
             )
-        self.hardware.request_rehang(
-            f"hanging {hanging + 1} of {hangings}: hang the object from another point, turned "
-            "by 90-180 deg (upside down is best), then confirm"
-        )
+        if request is not None:
+            self.hardware.request_rehang(request["words"])
+        else:
+            self.hardware.request_rehang(
+                f"hanging {hanging + 1}: hang the object from another point, turned by 90-180 "
+                "deg (upside down is best), then confirm"
+            )
         return self
 
     @property
@@ -103,8 +111,11 @@ def check_stereo_reach(config: ScanConfig, stereo: StereoCamera) -> None:
         )
 
 
-def simulated_cell(config: ScanConfig, meshcat=None, hanging: int = 0) -> Simulation:
-    """The true simulated world of a scan: its object, error model and camera design."""
+def simulated_cell(
+    config: ScanConfig, meshcat=None, hanging: int = 0, X_WO: np.ndarray | None = None
+) -> Simulation:
+    """The true simulated world of a scan: its object, error model and camera design
+    (`X_WO`: where the operator hung the object for this hanging, when it is known)."""
     design = config.camera.stereo_camera()
     return create_simulation(
         config.cell,
@@ -114,19 +125,29 @@ def simulated_cell(config: ScanConfig, meshcat=None, hanging: int = 0) -> Simula
         camera_tool.nominal_X_FC(design.baseline_m),
         meshcat=meshcat,
         hanging=hanging,
+        X_WO=X_WO,
     )
 
 
-def setup_world(config: ScanConfig, meshcat=None, hanging: int = 0) -> ScanWorld:
+def setup_world(
+    config: ScanConfig, meshcat=None, hanging: int = 0, X_WO: np.ndarray | None = None
+) -> ScanWorld:
     """The simulated cell (or the configured driver's hardware) and a planner on the software's
-    view of the cell, after checking that the stereo camera can measure at the standoff."""
+    view of the cell, after checking that the stereo camera can measure at the standoff and
+    that the cell can re-hang the object when the scan may ask for it."""
     stereo, X_FC = software_camera(config)
     check_stereo_reach(config, stereo)
     sim = hardware = None
     if config.driver:
         hardware = load_hardware(config.driver, config)
+        if config.auto_hangings and hardware.request_rehang is None:
+            raise ScannerError(
+                "hangings: 'auto' needs a driver that can ask for a re-hang "
+                "(Hardware.request_rehang); this one cannot: scan with --hangings 1 and "
+                "combine scans with scanner merge"
+            )
     else:
-        sim = simulated_cell(config, meshcat, hanging)
+        sim = simulated_cell(config, meshcat, hanging, X_WO)
     planner_cell = build_workcell(
         config.cell, None, X_FC, stereo.X_CR, meshcat=meshcat if hardware else None
     )

@@ -1,0 +1,220 @@
+"""`--hangings auto`: after each hanging, how much of the object the passes so far have seen
+(without truth), whether to ask for another hanging, and how to turn the object for it.
+
+Each hanging's quick model is its views' clouds (the per-view work the scan streams anyway)
+at the robot's poses with the mount corrected on the first hanging, without the fixture; each
+further hanging is aligned onto the ones before it as the final reconstruction will (the
+alignment's verification is logged here and enforced there). The coverage is that of the
+final report (`seen_surface`: seen and held by the data), so the decision and the report agree
+on what "seen" means.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from reconstruction.common.transforms import invert, rotate_vectors, transform_points
+from reconstruction.evaluation.coverage import SeenSurface, seen_surface
+from reconstruction.evaluation.metrics import SurfaceSamples, TriangleSurface
+from reconstruction.hangings.alignment import SeenSpace, align_pass
+from reconstruction.pipeline import filter_views, reconstruct_views
+from reconstruction.registration.filtering import o3d_cloud, refiltered
+from reconstruction.stereo.rectification import compute_rectification
+from reconstruction.surfaces.fixture import without_fixture
+from reconstruction.surfaces.fused import FusedCloud, fuse_clouds
+from scanner.configs.scan import ScanConfig
+from scanner.reconstruct.scan_views import (
+    capture_views,
+    fixture_line,
+    geometry_filter,
+    with_roi_centre,
+)
+from scanner.reconstruct.view_stream import ViewStream
+from scanner.scan_dir.manifest import SavedScan
+
+log = logging.getLogger("scanner.scan.auto_hangings")
+
+SAMPLES = 20_000
+
+
+@dataclass(frozen=True, eq=False)
+class QuickPass:
+    """One hanging's model at the kinematic poses, in its own frame: the fused cloud, each
+    view's stereo eye centres, and its depth maps with their camera poses."""
+
+    fused: FusedCloud
+    eyes: list[np.ndarray]
+    depths: list
+    X_WC: list[np.ndarray]
+
+
+@dataclass(frozen=True, eq=False)
+class Assessment:
+    """What the hangings so far have seen: the share of the closed model, that model in the
+    frame of the last hanging, and whether that hanging's alignment verified."""
+
+    fraction: float
+    seen: SeenSurface
+    verified: bool
+
+
+class HangingAssessor:
+    """Quick models of each hanging (made once) and their alignment onto the first."""
+
+    def __init__(self, scan: SavedScan, stream: ViewStream | None) -> None:
+        self.scan, self.stream = scan, stream
+        self.passes: dict[int, QuickPass] = {}
+        self.T: dict[int, np.ndarray] = {0: np.eye(4)}  # hanging -> the first's frame
+        self.verified: dict[int, bool] = {0: True}
+        self.X_FC: np.ndarray | None = None  # the mount, corrected on the first hanging
+
+    def _views(self, indices: list[int]):
+        """The hanging's views and their filtered clouds (the streamed ones where the scan
+        streamed them), and the filter of the rod and robot."""
+        scan = self.scan
+        processing = scan.config.processing
+        config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
+        ready, done = {}, {}
+        if self.stream is not None:
+            streamed = self.stream.so_far().views
+            ready = {i: (streamed[i].view, streamed[i].q_rad) for i in indices if i in streamed}
+            done = {i: streamed[i].cloud for i in ready if streamed[i].cloud is not None}
+        X_FC, stereo = scan.X_FC_nominal, scan.stereo
+        captured = capture_views(
+            scan, compute_rectification(stereo), X_FC, processing.stereo, indices, ready
+        )
+        remove = geometry_filter(
+            scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m
+        )
+        views, clouds, _ = filter_views(captured.views, X_FC, config, remove, done)
+        return views, clouds, remove, config
+
+    def _quick(self, indices: list[int]) -> QuickPass:
+        views, clouds, remove, config = self._views(indices)
+        if self.X_FC is None:
+            # The first hanging's views correct the mount (ICP, pose graph, hand-eye) as the
+            # final reconstruction will: the mount is the same in every hanging, and at the
+            # nominal one each view is up to a centimetre off, which blurs a quick model too
+            # much to align the next hanging onto it.
+            corrected = reconstruct_views(
+                views,
+                self.scan.X_FC_nominal,
+                replace(config, surfaces=replace(config.surfaces, methods=())),
+                remove,
+                filtered={c.index: c for c in clouds},
+            )
+            self.X_FC = corrected.X_FC
+        X_WC = [v.X_WF @ self.X_FC for v in views]
+        clouds = [refiltered(c, X, remove) for c, X in zip(clouds, X_WC)]
+        fused = fuse_clouds(clouds, X_WC, config.surfaces.fused_voxel_size_m)
+        keep = without_fixture(fused.points_W, [fixture_line(self.scan.config)])
+        fused = FusedCloud(fused.points_W[keep], fused.colors[keep], fused.normals_W[keep])
+        stereo = self.scan.stereo
+        return QuickPass(
+            fused,
+            [stereo.eye_centres_W(X) for X in X_WC],
+            [v.depth for v in views if v.depth is not None],
+            [X for v, X in zip(views, X_WC) if v.depth is not None],
+        )
+
+    def assess(self, hangings: list[list[int]], hanging: int, captured: set[int]) -> Assessment:
+        """The coverage of hangings 0..`hanging` together (their captured views), and the
+        closed model in the frame of `hanging`."""
+        for h in range(hanging + 1):
+            if h not in self.passes:
+                self.passes[h] = self._quick([i for i in hangings[h] if i in captured])
+            if h not in self.T:
+                self._align(h)
+        points, normals, colors, eyes = [], [], [], []
+        for h in range(hanging + 1):
+            T, q = self.T[h], self.passes[h]
+            points.append(transform_points(T, q.fused.points_W))
+            normals.append(rotate_vectors(T, q.fused.normals_W))
+            colors.append(q.fused.colors)
+            eyes += [transform_points(T, e) for e in q.eyes]
+        voxel = self.scan.config.processing.reconstruction.surfaces.fused_voxel_size_m
+        pc = o3d_cloud(np.vstack(points), np.vstack(normals), np.vstack(colors)).voxel_down_sample(
+            voxel
+        )
+        n = np.asarray(pc.normals)
+        merged = FusedCloud(
+            np.asarray(pc.points),
+            np.clip(np.round(np.asarray(pc.colors) * 255), 0, 255).astype(np.uint8),
+            n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12),
+        )
+        seen = seen_surface(merged, eyes, SAMPLES)
+        return Assessment(
+            seen.fraction, _moved(seen, invert(self.T[hanging])), self.verified[hanging]
+        )
+
+    def _align(self, h: int) -> None:
+        reference = [self.passes[k] for k in range(h)]
+        ref_points = np.vstack(
+            [transform_points(self.T[k], p.fused.points_W) for k, p in enumerate(reference)]
+        )
+        ref_colors = np.vstack([p.fused.colors for p in reference])
+        seen = SeenSpace(
+            tuple(d for p in reference for d in p.depths),
+            tuple(self.T[k] @ X for k, p in enumerate(reference) for X in p.X_WC),
+        )
+        q = self.passes[h]
+        a = align_pass(
+            h,
+            q.fused.points_W,
+            ref_points,
+            seen,
+            self.scan.config.processing.reconstruction.alignment,
+            q.fused.colors,
+            ref_colors,
+        )
+        if a.failures:
+            # The final reconstruction verifies again (and refuses); here the best fit still
+            # tells what was seen and how to turn the object next.
+            log.warning(
+                "hanging %d: its quick model does not verify against the hangings before it "
+                "(%s); the final alignment decides",
+                h + 1,
+                "; ".join(a.failures),
+            )
+        self.T[h], self.verified[h] = a.T, not a.failures
+
+
+def _moved(seen: SeenSurface, T: np.ndarray) -> SeenSurface:
+    """The same seen surface after the rigid transform T."""
+    surface = TriangleSurface(transform_points(T, seen.surface.vertices), seen.surface.triangles)
+    samples = SurfaceSamples(
+        transform_points(T, seen.samples.points), rotate_vectors(T, seen.samples.normals)
+    )
+    return replace(seen, surface=surface, samples=samples)
+
+
+@dataclass(frozen=True)
+class Decision:
+    """After a hanging: stop (with the reason) or ask for another."""
+
+    another: bool
+    reason: str
+
+
+def decide(config: ScanConfig, coverage: list[float]) -> Decision:
+    """`coverage`: the estimate after each hanging so far (the last is the current one)."""
+    c, n = coverage[-1], len(coverage)
+    target = config.coverage_target
+    if c >= target:
+        return Decision(False, f"coverage {c:.3f} reached the target {target:.2f}")
+    if n >= 2 and c - coverage[-2] < config.min_hanging_gain:
+        return Decision(
+            False,
+            f"hanging {n} added {c - coverage[-2]:.3f} of the surface, less than "
+            f"{config.min_hanging_gain:.2f}: more hangings would not finish it (coverage {c:.3f})",
+        )
+    if n >= config.max_hangings:
+        return Decision(
+            False,
+            f"max_hangings ({config.max_hangings}) done with coverage {c:.3f}, below the "
+            f"target {target:.2f}",
+        )
+    return Decision(True, f"coverage {c:.3f} is below the target {target:.2f}")
