@@ -96,9 +96,9 @@ def test_the_next_best_hanging_turns_the_unseen_top_down_towards_the_cameras():
     assert choice.gain == pytest.approx(1.0 - seen.fraction, abs=0.08)
     # The clamp point is the model's highest point once turned: on the sphere, along up_W.
     np.testing.assert_allclose(choice.clamp_W, CENTRE + 0.1 * choice.up_W, atol=0.01)
-    words = instruction(choice, 1, "results/rehang_2.png")
+    words = instruction(choice, 1, "scan/rehang_2.png")
     assert words.startswith("hanging 2: turn the object by about")
-    assert "down" in words and "results/rehang_2.png" in words
+    assert "down" in words and "scan/rehang_2.png" in words
 
 
 def test_the_coverage_counts_only_what_the_data_hold():
@@ -160,10 +160,13 @@ def test_an_auto_scan_asks_for_a_second_hanging_and_the_operator_follows_it(
     """Six views at 640x480 see about half the vase: the scanner asks for a second hanging,
     says how (words, picture, the side to bring up); interrupted before the object was re-hung,
     `--resume` asks for the same hanging again; the simulated operator hangs it within 25 deg
-    of the request, and the report lists both hangings and why it stopped."""
+    of the request, the reconstruction merges both, and the report and summary list both
+    hangings and why it stopped."""
     from reconstruction.stereo.camera_model import StereoDesign
+    from scanner.configs.scan import scan_config_from_dict
     from scanner.scan.run import run_scan
     from scanner.scan.world import ScanWorld
+    from tests.tiny_scan import TINY_PROCESSING
 
     default = StereoDesign()
     half = replace(
@@ -172,8 +175,9 @@ def test_an_auto_scan_asks_for_a_second_hanging_and_the_operator_follows_it(
         height_px=default.height_px // 2,
         focal_px=default.focal_px / 2,
     )
+    tiny = scan_config_from_dict({"processing": TINY_PROCESSING}, "tiny").processing
     config = with_overrides(ScanConfig(), views=6, seed=2, hangings="auto")
-    config = replace(config, camera=half, max_hangings=2, reconstruct=False)
+    config = replace(config, camera=half, max_hangings=2, processing=tiny)
     asked = []
     rehang = ScanWorld.rehang
 
@@ -209,3 +213,9 @@ def test_an_auto_scan_asks_for_a_second_hanging_and_the_operator_follows_it(
     assert 10.0 - 1e-6 <= _angle_deg(turned_up, UP) <= 25.0 + 1e-6
     manifest = yaml.safe_load((result.scan_dir / "scan.yaml").read_text())
     assert len(manifest["hangings"]) == 2 and manifest.get("pending_rehang") is None
+    # The reconstruction merged both hangings, kept the picture, and the summary tells the story.
+    assert [p["hanging"] for p in report["hangings"]] == [1, 2]
+    assert (result.scan_dir / request["picture"]).is_file()
+    summary = (result.scan_dir / "results" / "summary.md").read_text()
+    assert "## Hangings asked for (hangings: auto)" in summary
+    assert f"(../{request['picture']})" in summary and "Stopped asking for hangings" in summary

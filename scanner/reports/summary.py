@@ -57,7 +57,7 @@ def _decision_lines(report: dict) -> list[str]:
         nxt = d.get("next", {})
         words = nxt.get("words", "-")
         if "picture" in nxt:
-            words += f" ([picture]({nxt['picture'].removeprefix('results/')}))"
+            words += f" ([picture](../{nxt['picture']}))"
         lines.append(
             f"| {d['hanging']} | {_fmt(d['coverage_before'])} | {_fmt(d['coverage_after'])} | "
             f"{nxt.get('asked_because', '-')} | {words} |"

@@ -161,16 +161,16 @@ class HangingRunner:
         choice = next_best_hanging(seen, centre, self.config.views.radius_m, directions)
         if choice is None or choice.gain <= 0:
             return None
+        # Beside the captures, not in results/: a reconstruction writes that folder anew.
         name = f"rehang_{hanging + 1}.png"
-        self.store.results_dir.mkdir(exist_ok=True)
-        picture = self.store.results_dir / name
+        picture = self.store.root / name
         write_rehang_picture(seen, choice.up_W, choice.clamp_W, centre, hanging, picture)
         return {
             "up_W": [float(x) for x in choice.up_W],
             "clamp_W": [float(x) for x in choice.clamp_W],
             "expected_gain": choice.gain,
             "words": instruction(choice, hanging, str(picture)),
-            "picture": f"results/{name}",
+            "picture": name,
         }
 
     def _per_hanging(self) -> int:
