@@ -70,6 +70,10 @@ def test_the_decision_stops_at_the_target_on_a_small_gain_or_at_the_limit():
     assert not decide(config, [0.80, 0.805]).another
     assert "less than" in decide(config, [0.80, 0.805]).reason
     assert decide(config, [0.80, 0.90]).another
+    # A hanging whose quick model does not align says so, whatever its coverage reads.
+    refused = decide(config, [0.40, 0.40], ("the texture does not match",))
+    assert not refused.another and "could not be aligned" in refused.reason
+    assert "the texture does not match" in refused.reason
     limited = replace(config, max_hangings=2)
     assert not decide(limited, [0.80, 0.90]).another
     assert "max_hangings" in decide(limited, [0.80, 0.90]).reason

@@ -58,7 +58,11 @@ class Assessment:
 
     fraction: float
     seen: SeenSurface
-    verified: bool
+    failures: tuple[str, ...]  # the checks the last hanging's alignment failed
+
+    @property
+    def verified(self) -> bool:
+        return not self.failures
 
 
 class HangingAssessor:
@@ -68,7 +72,7 @@ class HangingAssessor:
         self.scan, self.stream = scan, stream
         self.passes: dict[int, QuickPass] = {}
         self.T: dict[int, np.ndarray] = {0: np.eye(4)}  # hanging -> the first's frame
-        self.verified: dict[int, bool] = {0: True}
+        self.failures: dict[int, tuple[str, ...]] = {0: ()}
         self.X_FC: np.ndarray | None = None  # the mount, corrected on the first hanging
 
     def _views(self, indices: list[int]):
@@ -147,7 +151,7 @@ class HangingAssessor:
         )
         seen = seen_surface(merged, eyes, SAMPLES)
         return Assessment(
-            seen.fraction, _moved(seen, invert(self.T[hanging])), self.verified[hanging]
+            seen.fraction, _moved(seen, invert(self.T[hanging])), self.failures[hanging]
         )
 
     def _align(self, h: int) -> None:
@@ -179,7 +183,7 @@ class HangingAssessor:
                 h + 1,
                 "; ".join(a.failures),
             )
-        self.T[h], self.verified[h] = a.T, not a.failures
+        self.T[h], self.failures[h] = a.T, tuple(a.failures)
 
 
 def _moved(seen: SeenSurface, T: np.ndarray) -> SeenSurface:
@@ -199,10 +203,18 @@ class Decision:
     reason: str
 
 
-def decide(config: ScanConfig, coverage: list[float]) -> Decision:
-    """`coverage`: the estimate after each hanging so far (the last is the current one)."""
+def decide(config: ScanConfig, coverage: list[float], failures: tuple[str, ...] = ()) -> Decision:
+    """`coverage`: the estimate after each hanging so far (the last is the current one);
+    `failures`: the checks the last hanging's quick alignment failed (its coverage is then
+    not what was seen: a wrong fit puts it over what the others saw)."""
     c, n = coverage[-1], len(coverage)
     target = config.coverage_target
+    if failures:
+        return Decision(
+            False,
+            f"hanging {n} could not be aligned with the hangings before it ({'; '.join(failures)});"
+            " another hanging cannot be placed either, and the reconstruction verifies again",
+        )
     if c >= target:
         return Decision(False, f"coverage {c:.3f} reached the target {target:.2f}")
     if n >= 2 and c - coverage[-2] < config.min_hanging_gain:
