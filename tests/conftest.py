@@ -97,20 +97,14 @@ def vase12_scan_dir(run_dir) -> Path:
     0.5 mm, observed surface sub-millimetre) at a quarter of the pixels to match."""
     from dataclasses import replace
 
-    from reconstruction.stereo.camera_model import StereoDesign
     from scanner.configs.scan import ScanConfig, with_overrides
     from scanner.scan.run import run_scan
-
-    default = StereoDesign()
-    half = replace(
-        default,
-        width_px=default.width_px // 2,
-        height_px=default.height_px // 2,
-        focal_px=default.focal_px / 2,
-    )
+    from tests.tiny_scan import HALF_RESOLUTION
 
     def build(out: Path) -> None:
-        config = replace(with_overrides(ScanConfig(), views=12, seed=0, hangings=1), camera=half)
+        config = replace(
+            with_overrides(ScanConfig(), views=12, seed=0, hangings=1), camera=HALF_RESOLUTION
+        )
         run_scan(replace(config, reconstruct=False), out)
 
     return built_once(run_dir, "vase12-scan", build)

@@ -132,25 +132,18 @@ def test_a_flat_ellipsoid_scanned_in_two_hangings_has_no_rod_in_its_model(tmp_pa
     import open3d as o3d
     import yaml
 
-    from reconstruction.stereo.camera_model import StereoDesign
     from scanner.configs.scan import ScanConfig, with_overrides
     from scanner.scan.run import run_scan
+    from tests.tiny_scan import HALF_RESOLUTION
 
     sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, resolution=40)
     sphere.vertices = o3d.utility.Vector3dVector(np.asarray(sphere.vertices) * [0.1, 0.05, 0.025])
     o3d.io.write_triangle_mesh(str(tmp_path / "flat.obj"), sphere)
-    default = StereoDesign()
-    half = replace(
-        default,
-        width_px=default.width_px // 2,
-        height_px=default.height_px // 2,
-        focal_px=default.focal_px / 2,
-    )
     config = with_overrides(
         ScanConfig(), object_spec=str(tmp_path / "flat.obj"), views=10, seed=5, hangings=2
     )
     processing = replace(config.processing, metric_samples=20_000)
-    config = replace(config, camera=half, processing=processing)
+    config = replace(config, camera=HALF_RESOLUTION, processing=processing)
     result = run_scan(config, tmp_path / "scan")
     scan = result.scan_dir
     # The report's own count (against the truth) agrees.

@@ -184,17 +184,26 @@ def test_a_scan_runs_on_a_hardware_driver(tiny_config_file, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "driver, needle",
+    "args, needle",
     [
-        ("no_such_module:connect", "cannot import 'no_such_module'"),
-        ("tests.simulated_hardware:nothing", "has no callable 'nothing'"),
-        ("tests.simulated_hardware:not_hardware", "expected robots.drivers.interfaces.Hardware"),
-        ("tests.simulated_hardware", "expected 'package.module:factory'"),
+        (["--driver", "no_such_module:connect"], "cannot import 'no_such_module'"),
+        (["--driver", "tests.simulated_hardware:nothing"], "has no callable 'nothing'"),
+        (
+            ["--driver", "tests.simulated_hardware:not_hardware"],
+            "expected robots.drivers.interfaces.Hardware",
+        ),
+        (["--driver", "tests.simulated_hardware"], "expected 'package.module:factory'"),
+        (["--hangings", "0"], "--hangings"),
+        (["--hangings", "sometimes"], "--hangings"),
+        (
+            ["--hangings", "auto", "--driver", "tests.simulated_hardware:connect"],
+            "needs a driver that can ask for a re-hang",
+        ),
     ],
 )
-def test_bad_driver_is_a_user_error(tmp_path, driver, needle):
+def test_bad_driver_or_hangings_is_a_user_error_before_anything_moves(tmp_path, args, needle):
     r = subprocess.run(
-        _scanner("--driver", driver, "--views", "2", "--out", str(tmp_path / "x")),
+        _scanner(*args, "--views", "2", "--out", str(tmp_path / "x")),
         capture_output=True,
         text=True,
         timeout=300,

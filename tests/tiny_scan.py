@@ -1,5 +1,10 @@
 """The smallest simulated scan the end-to-end tests use: 5 views at 320x240, a small roadmap and
-coarse surfaces (the tests check behaviour, not accuracy)."""
+coarse surfaces (the tests check behaviour, not accuracy); and the half-resolution camera of the
+tests that check accuracy on fewer pixels."""
+
+from dataclasses import replace
+
+from reconstruction.stereo.camera_model import StereoDesign
 
 # Measured on the tiny scan: 20 -> 11 s a reconstruction (Poisson 5.5 -> 1.6 s, TSDF 2.5 -> 1.2 s,
 # evaluation 3.0 -> 0.4 s); its 320x240 views resolve no finer than these 2 mm anyway.
@@ -21,3 +26,12 @@ TINY_SCAN = {
     "planner": {"roadmap_milestones": 120, "prm_build_time_s": 20.0},
     "processing": TINY_PROCESSING,
 }
+
+
+# The default camera at half its resolution (640x480, the same field of view).
+HALF_RESOLUTION = replace(
+    StereoDesign(),
+    width_px=StereoDesign().width_px // 2,
+    height_px=StereoDesign().height_px // 2,
+    focal_px=StereoDesign().focal_px / 2,
+)
