@@ -1,0 +1,84 @@
+"""The `hardware:` section of a configuration: which robot link and which camera a scan runs on.
+
+Kinds are chosen by name; a kind's own fields sit beside `kind` (unused ones keep their
+defaults). Anything not covered here plugs in through `--driver MODULE:FACTORY`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from reconstruction.common.checks import (
+    check_fields,
+    integer,
+    positive,
+    require_choice,
+)
+from reconstruction.common.errors import ScannerError
+
+ROBOT_KINDS = ("staubli_val3",)
+# "simulated": the scan's own simulated cell rendered at the joints the robot link reports
+# (with the controller emulator: a whole scan over the wire without a camera).
+CAMERA_KINDS = ("opencv", "simulated")
+
+
+@dataclass(frozen=True)
+class RobotLinkConfig:
+    """The arm's controller. staubli_val3: the ROS-Industrial VAL 3 server on a CS8/CS9
+    controller (its default ports); speed_fraction: movej speed as a fraction of each joint's
+    nominal speed; path_tolerance_rad: how far a measured joint may leave the commanded
+    joint-linear path before the arm is stopped; state_timeout_s: a state stream silent this
+    long stops the arm; connect_timeout_s: for each TCP connection and the first state."""
+
+    kind: str = "staubli_val3"
+    host: str = "127.0.0.1"
+    motion_port: int = integer(11000, maximum=65535)
+    state_port: int = integer(11002, maximum=65535)
+    speed_fraction: float = positive(0.25, at_most=1.0)
+    path_tolerance_rad: float = positive(0.02)
+    state_timeout_s: float = positive(0.5)
+    connect_timeout_s: float = positive(3.0)
+
+    def __post_init__(self) -> None:
+        require_choice("hardware.robot", "kind", self.kind, ROBOT_KINDS)
+        if not self.host:
+            raise ScannerError("hardware.robot.host: expected a host name or address, got ''")
+        check_fields("hardware.robot", self)
+
+
+@dataclass(frozen=True)
+class CameraLinkConfig:
+    """The stereo camera. opencv: two OpenCV video sources (`left`, `right`: a device index,
+    a device path, a URL or an image-sequence pattern such as `rec/left_%04d.png`), or one
+    source delivering side-by-side frames (`side_by_side: true`, `right` unset); both are
+    grabbed before either is retrieved, and grabs further apart than max_skew_s are refused.
+    simulated: the scan's simulated cell, rendered at the joints the robot link reports."""
+
+    kind: str = "opencv"
+    left: int | str = 0
+    right: int | str | None = 1
+    side_by_side: bool = False
+    max_skew_s: float = positive(0.01)
+    # Grabs that fail in a row before the capture is reported failed (the scan then retries).
+    grab_attempts: int = integer(3)
+
+    def __post_init__(self) -> None:
+        require_choice("hardware.camera", "kind", self.kind, CAMERA_KINDS)
+        if self.kind == "opencv":
+            if self.side_by_side and self.right is not None:
+                raise ScannerError(
+                    "hardware.camera.right: expected no right source with side_by_side: true "
+                    f"(one device delivers both images), got {self.right!r}"
+                )
+            if not self.side_by_side and self.right is None:
+                raise ScannerError(
+                    "hardware.camera.right: expected the right camera's source (or "
+                    "side_by_side: true), got none"
+                )
+        check_fields("hardware.camera", self)
+
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    robot: RobotLinkConfig = field(default_factory=RobotLinkConfig)
+    camera: CameraLinkConfig = field(default_factory=CameraLinkConfig)
