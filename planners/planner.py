@@ -30,6 +30,7 @@ import numpy as np
 
 from planners.collision import CollisionChecker
 from planners.ik import Viewpoint, camera_pose, ik_camera, rig_centre_offset
+from planners.joint_linear import joint_linear_trajectory
 from planners.prm import (
     OmplSpace,
     Roadmap,
@@ -55,6 +56,7 @@ from planners.timing import (
 from planners.validation import ValidationReport, validate_trajectory
 from reconstruction.common.checks import check_fields, integer, positive
 from reconstruction.common.errors import ScannerError
+from robots.drivers.interfaces import JointTrajectory
 from robots.models.rx60 import RX60, rx60_urdf
 from robots.models.workcell import Workcell, keep_out_radius_m
 
@@ -93,6 +95,10 @@ class PlannerConfig:
     # velocity/acceleration limits (numerical noise only).
     max_joint_step_rad: float = positive(0.25 * _DEG)
     limit_tolerance: float = 1e-6
+    # A point-to-point controller's waypoints: each straight joint-space chord stays this close
+    # to the validated curve (fewer points: faster, the controller stops at each); the chords
+    # themselves are then validated densely.
+    chord_tolerance_rad: float = positive(0.5 * _DEG)
     # Moves smaller than this (max over joints) are far below encoder resolution: they are
     # made as a smooth creep of creep_time_s instead of through the planner.
     min_move_rad: float = positive(1e-6)
@@ -409,6 +415,24 @@ class Planner:
                 gridpoints *= 2
                 fraction *= 0.9
         return PlanFailure("validation_failed", "; ".join(reports))
+
+    def executable(self, trajectory: Trajectory, motion: str) -> JointTrajectory | PlanFailure:
+        """What a robot driver of kind `motion` (RobotDriver.motion) is given to run: the
+        sampled curve, or waypoints whose joint-linear path was validated as such."""
+        if motion != "joint_linear":
+            return trajectory.to_joint_trajectory()
+        result = joint_linear_trajectory(
+            trajectory,
+            self.checker,
+            self.robot,
+            self.config.chord_tolerance_rad,
+            self.config.max_joint_step_rad,
+        )
+        if isinstance(result, ValidationReport):
+            return PlanFailure(
+                "validation_failed", f"joint-linear path: {result.failed_check} ({result.detail})"
+            )
+        return result
 
     def validate(self, trajectory: Trajectory, q_start, q_goal) -> ValidationReport:
         """The independent dense check every returned trajectory has passed."""

@@ -221,11 +221,21 @@ def test_planned_mover_executes_or_reports_the_failure():
 
     executed = []
     robot = SimpleNamespace(
-        joint_positions=lambda: np.zeros(6), execute=lambda trajectory: executed.append(trajectory)
+        joint_positions=lambda: np.zeros(6),
+        execute=lambda trajectory: executed.append(trajectory),
+        motion="joint_linear",
     )
-    ok = SimpleNamespace(to_joint_trajectory=lambda: "trajectory")
-    mover = PlannedMover(lambda q0, q1: ok, robot)
-    assert mover(np.ones(6)) and executed == ["trajectory"]
+
+    def planner(result, executable=lambda t, motion: f"{t} as {motion}"):
+        return SimpleNamespace(plan=lambda q0, q1: result, executable=executable)
+
+    mover = PlannedMover(planner("trajectory"), robot)
+    assert mover(np.ones(6)) and executed == ["trajectory as joint_linear"]
     failure = PlanFailure("no_path", "roadmap disconnected")
-    mover = PlannedMover(lambda q0, q1: failure, robot)
+    mover = PlannedMover(planner(failure), robot)
     assert not mover(np.ones(6)) and mover.last_failure == "no_path: roadmap disconnected"
+    # A path the controller would run differently from the plan, failing its own check
+    refused = PlanFailure("validation_failed", "joint-linear path: collision")
+    mover = PlannedMover(planner("trajectory", lambda t, m: refused), robot)
+    assert not mover(np.ones(6)) and "joint-linear path" in mover.last_failure
+    assert executed == ["trajectory as joint_linear"]

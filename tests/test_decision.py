@@ -43,6 +43,9 @@ class _Planner:
     def estimate_duration_s(self, q_a, q_b):
         return 1.0
 
+    def executable(self, trajectory, motion):
+        return trajectory.to_joint_trajectory()
+
 
 class _Camera(StereoCameraDriver):
     def __init__(self, failures_before_success=0, always_fail=False):

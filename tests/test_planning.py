@@ -340,3 +340,59 @@ def test_a_damaged_cache_file_is_never_used(tmp_path):
     # The rebuilt roadmap replaced the damaged file, atomically and with no temporary left.
     assert make_planner(WorkcellConfig(), cache_dir=str(tmp_path), **TINY).roadmap_from_cache
     assert sorted(p.name for p in tmp_path.iterdir()) == [path.name]
+
+
+# --- what a point-to-point controller runs --------------------------------------------------
+
+
+def _blocked_pair(planner, views):
+    pairs = [
+        (qa, qb)
+        for i, qs_a in enumerate(views)
+        for qs_b in views[i + 1 :]
+        for qa in qs_a[:3]
+        for qb in qs_b[:3]
+    ]
+    return next(((a, b) for a, b in pairs if straight_line_collides(planner, a, b)), None)
+
+
+def test_a_joint_linear_controller_gets_waypoints_checked_as_straight_moves(
+    planner, views, independent_checker
+):
+    """The VAL 3 server moves straight in joint space between points: the waypoints hug the
+    validated curve (every chord within the tolerance of it) and their own polyline is free
+    under an independent checker at the dense resolution."""
+    from planners.joint_linear import chord_deviation_rad, polyline_samples
+
+    pair = _blocked_pair(planner, views) or (views[0][0], views[-1][0])
+    result = planner.plan(*pair)
+    assert isinstance(result, Trajectory), result
+    jt = planner.executable(result, "joint_linear")
+    assert jt.joint_linear and not planner.executable(result, "sampled").joint_linear
+    q = jt.positions_rad
+    assert np.array_equal(q[0], pair[0]) and np.array_equal(q[-1], pair[1])
+    # Far fewer points than the 10 ms samples a sampled driver plays (the arm stops at each).
+    assert 2 <= len(q) < len(result.to_joint_trajectory().positions_rad) / 3
+    tolerance = planner.config.chord_tolerance_rad
+    for k in range(len(q) - 1):
+        t = np.linspace(jt.times_s[k], jt.times_s[k + 1], 50)
+        assert chord_deviation_rad(result.samples(t), q[k], q[k + 1]).max() <= tolerance + 1e-12
+    dense = polyline_samples(q, MAX_STEP_RAD)
+    assert np.abs(np.diff(dense, axis=0)).max() <= MAX_STEP_RAD + 1e-12
+    assert independent_checker.are_free(dense).all()
+
+
+def test_a_straight_move_through_the_cell_is_refused_for_a_joint_linear_controller(planner, views):
+    """With a chord tolerance so large that the controller would be sent straight from start to
+    goal, the polyline check finds the collision the curve went around: nothing to execute."""
+    from planners.joint_linear import joint_linear_trajectory, validate_polyline
+
+    pair = _blocked_pair(planner, views)
+    if pair is None:
+        pytest.skip("every straight move between these views is free")
+    result = planner.plan(*pair)
+    assert isinstance(result, Trajectory), result
+    report = validate_polyline(np.stack(pair), *pair, planner.checker, planner.robot, MAX_STEP_RAD)
+    assert not report.ok and report.failed_check == "collision"
+    refused = joint_linear_trajectory(result, planner.checker, planner.robot, 10.0, MAX_STEP_RAD)
+    assert not refused.ok and refused.failed_check == "collision"

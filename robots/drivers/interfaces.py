@@ -19,10 +19,14 @@ class JointTrajectory:
     """A time-parameterised joint path sampled densely enough to be executed by interpolation.
 
     times_s: (K,) strictly increasing from 0; positions_rad: (K, 6).
+    joint_linear: the straight joint-space path through the positions was itself checked
+    (collision, limits) at the dense-validation resolution, so a controller that moves
+    point to point in straight joint-space lines may run it (planners.joint_linear).
     """
 
     times_s: np.ndarray
     positions_rad: np.ndarray
+    joint_linear: bool = False
 
     def __post_init__(self) -> None:
         t, q = np.asarray(self.times_s, float), np.asarray(self.positions_rad, float)
@@ -51,6 +55,11 @@ class StereoImages:
 
 class RobotDriver(abc.ABC):
     """A 6-axis arm: report measured joints, execute a (validated) trajectory until at rest."""
+
+    # What execute() runs: "sampled", the trajectory's curve (interpolating its samples), or
+    # "joint_linear", straight joint-space moves from position to position (a controller fed
+    # waypoints); the scan then gives it waypoints checked as such a path.
+    motion: str = "sampled"
 
     @abc.abstractmethod
     def joint_positions(self) -> np.ndarray:

@@ -109,17 +109,19 @@ def planner_reachable(world: CalibrationWorld):
 class PlannedMover:
     """`move_to` through the motion planner: a validated, collision-free trajectory, executed."""
 
-    def __init__(self, plan: Callable, robot) -> None:
-        self._plan = plan
+    def __init__(self, planner, robot) -> None:
+        self._planner = planner
         self._robot = robot
         self.last_failure = ""
 
     def __call__(self, q: np.ndarray) -> bool:
-        result = self._plan(self._robot.joint_positions(), q)
+        result = self._planner.plan(self._robot.joint_positions(), q)
+        if not isinstance(result, PlanFailure):
+            result = self._planner.executable(result, self._robot.motion)
         if isinstance(result, PlanFailure):
             self.last_failure = f"{result.reason}: {result.detail}"
             return False
-        self._robot.execute(result.to_joint_trajectory())
+        self._robot.execute(result)
         return True
 
 
@@ -172,7 +174,7 @@ def run_eye_in_hand(
             )
         world = build_world(config)
         store, stations = _start_run(config, world, out_dir, force, reachable)
-    move_to = move_to or PlannedMover(world.planner.plan, world.robot)
+    move_to = move_to or PlannedMover(world.planner, world.robot)
     done = set(store.captured_indices())
     skipped = []
     t_capture = time.perf_counter()

@@ -76,7 +76,7 @@ class _MarkerSession:
             self.settings.camera.X_WS,
             marker,
         )
-        self.move_to = move_to or PlannedMover(self.world.planner.plan, sim.robot)
+        self.move_to = move_to or PlannedMover(self.world.planner, sim.robot)
         self.p_FM = np.array(self.settings.marker.p_FM)
 
     def _reach(self, p_WM: np.ndarray) -> str:

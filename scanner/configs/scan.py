@@ -18,6 +18,7 @@ from reconstruction.stereo.camera_model import StereoDesign
 from reconstruction.stereo.params import StereoParams
 from reconstruction.surfaces.export import MeshExportConfig
 from reconstruction.surfaces.meshes import MESH_SUFFIXES
+from robots.drivers.settings import HardwareConfig
 from robots.models.workcell import WorkcellConfig
 from robots.simulation.truth import ErrorModel
 from scanner.configs.flags import for_flag
@@ -94,6 +95,9 @@ class ScanConfig:
     # robots.drivers.interfaces.Hardware (robot + stereo camera drivers). None: the Drake
     # simulation.
     driver: str | None = None
+    # A real cell from configuration (robot link and camera kinds, hosts, ports, devices);
+    # exclusive with `driver`. None: the Drake simulation.
+    hardware: HardwareConfig | None = None
     # Passes over the object, re-hung (turned) between them; the passes are aligned and merged
     # into one model. One hanging never sees the top of a hung object. "auto": after each
     # hanging the scanner estimates what it has not seen and asks for another hanging, turned
@@ -117,6 +121,11 @@ class ScanConfig:
         if not 0 < self.coverage_target <= 1:
             raise ScannerError(
                 f"coverage_target: expected a fraction in (0, 1], got {self.coverage_target}"
+            )
+        if self.driver and self.hardware is not None:
+            raise ScannerError(
+                "hardware: a scan runs on --driver MODULE:FACTORY or on a hardware: section, "
+                "not both"
             )
         check_fields("scan", self)
 

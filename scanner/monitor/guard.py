@@ -12,15 +12,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from planners.planner import PlanFailure
 from robots.drivers.interfaces import JointTrajectory, RobotDriver, StereoCameraDriver, StereoImages
 from scanner.monitor.cell_monitor import CellMonitor, MonitorStoppedError
 
 
 class MonitoredRobot(RobotDriver):
-    def __init__(self, inner: RobotDriver, monitor: CellMonitor, plan) -> None:
-        """`plan(q_from, q_to)`: the planner's result for a new motion (a PlanFailure, or a
-        plan with `to_joint_trajectory()`)."""
-        self.inner, self.monitor, self._plan = inner, monitor, plan
+    def __init__(self, inner: RobotDriver, monitor: CellMonitor, planner) -> None:
+        """`planner`: plans a new motion (`plan`) and makes it what `inner` runs
+        (`executable`), as for any motion of the scan."""
+        self.inner, self.monitor, self._planner = inner, monitor, planner
+        self.motion = inner.motion
         self.pauses = 0
 
     def joint_positions(self) -> np.ndarray:
@@ -35,7 +37,11 @@ class MonitoredRobot(RobotDriver):
         times = trajectory.times_s
         k = max(1, int(np.searchsorted(times, stop - 1e-9)))
         if k < len(times) - 1:
-            self.inner.execute(JointTrajectory(times[: k + 1], trajectory.positions_rad[: k + 1]))
+            # A prefix of a checked joint-linear path is a checked joint-linear path.
+            head = JointTrajectory(
+                times[: k + 1], trajectory.positions_rad[: k + 1], trajectory.joint_linear
+            )
+            self.inner.execute(head)
         else:
             self.inner.execute(trajectory)
         self.pauses += 1
@@ -47,14 +53,16 @@ class MonitoredRobot(RobotDriver):
         goal = trajectory.positions_rad[-1]
         if np.max(np.abs(q - goal)) <= 1e-9:
             return
-        result = self._plan(q, goal)
-        if not hasattr(result, "to_joint_trajectory"):
+        result = self._planner.plan(q, goal)
+        if not isinstance(result, PlanFailure):
+            result = self._planner.executable(result, self.motion)
+        if isinstance(result, PlanFailure):
             raise MonitorStoppedError(
                 f"after an intrusion no path from where the arm stopped to its goal "
                 f"({result.reason}: {result.detail}); the scan stops here and can be resumed"
             )
         self.monitor.event(self.monitor.video.clock_s, "resumed", "motion planned again")
-        self.execute(result.to_joint_trajectory())
+        self.execute(result)
 
 
 class MonitoredCamera(StereoCameraDriver):

@@ -92,9 +92,9 @@ class ScanMonitor:
     def clock_s(self) -> float:
         return self.monitors[-1].video.clock_s if self.monitors else 0.0
 
-    def drivers(self, robot, camera, plan):
+    def drivers(self, robot, camera, planner):
         monitor = self.monitors[-1]
-        watched = MonitoredRobot(robot, monitor, plan)
+        watched = MonitoredRobot(robot, monitor, planner)
         shutter = MonitoredCamera(camera, robot, monitor)
         self.robots.append(watched)
         self.cameras.append(shutter)

@@ -50,6 +50,8 @@ class PlannerLike(Protocol):
 
     def estimate_duration_s(self, q_a: np.ndarray, q_b: np.ndarray) -> float: ...
 
+    def executable(self, trajectory, motion: str): ...  # JointTrajectory | PlanFailure
+
 
 class ViewSource(Protocol):
     def next_view(self, q_current: np.ndarray) -> PlannedView | None: ...
@@ -176,8 +178,12 @@ class DecisionMaker:
             if isinstance(result, PlanFailure):
                 failures.append(f"{result.reason}: {result.detail}")
                 continue
+            motion = self.planner.executable(result, self.robot.motion)
+            if isinstance(motion, PlanFailure):
+                failures.append(f"{motion.reason}: {motion.detail}")
+                continue
             self._go(State.EXECUTE)
-            self._timer.call("execute", self.robot.execute, result.to_joint_trajectory())
+            self._timer.call("execute", self.robot.execute, motion)
             self._motion_s += result.duration_s
             self._go(State.SETTLE)
             if not self._timer.call("settle", self._settled, option.q):

@@ -12,6 +12,7 @@ import numpy as np
 
 from planners.tour import Tour, plan_tour
 from reconstruction.common.errors import StorageError
+from robots.drivers.staubli_val3 import RobotStoppedError
 from robots.models.kinematics import Kinematics
 from robots.simulation.truth import record_hung_pose
 from scanner.configs.scan import ScanConfig
@@ -49,7 +50,7 @@ def _decision_maker(
     robot = WatchedRobot(world.robot, live, world.joint_offsets_rad) if live else world.robot
     camera = world.camera
     if monitor is not None:
-        robot, camera = monitor.drivers(robot, camera, world.planner.plan)
+        robot, camera = monitor.drivers(robot, camera, world.planner)
     return DecisionMaker(
         world.planner,
         robot,
@@ -311,7 +312,7 @@ def _run_machine(machine: DecisionMaker, store: CaptureStore) -> RunSummary:
     continue."""
     try:
         return machine.run()
-    except (MonitorStoppedError, StorageError) as e:
+    except (MonitorStoppedError, RobotStoppedError, StorageError) as e:
         # On a full disk the manifest may keep "running", which resumes the same way.
         with suppress(OSError):
             store.update_manifest(status="interrupted")

@@ -3,6 +3,7 @@ view of the cell, and the camera model and X_FC the software believes."""
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -17,9 +18,12 @@ from reconstruction.stereo.cloud import view_cloud
 from reconstruction.stereo.params import disparity_window, object_depth_window
 from reconstruction.stereo.rectification import compute_rectification
 from robots.drivers.interfaces import Hardware, RobotDriver, StereoCameraDriver, load_hardware
+from robots.drivers.opencv_stereo import open_stereo_camera
+from robots.drivers.staubli_val3 import connect_val3
 from robots.models import camera_tool
 from robots.models.workcell import Workcell, build_workcell, keep_out_radius_m
 from robots.simulation.cell import Simulation, cache_dir, create_simulation, rehang
+from robots.simulation.stereo_camera import SimulatedStereoCamera
 from scanner.configs.scan import ScanConfig
 
 
@@ -46,7 +50,9 @@ class ScanWorld:
         up_W = None if request is None else np.asarray(request["up_W"], float)
         if self.sim is not None:
             sim = rehang(self.sim, hanging, meshcat, operator, up_W)
-            return replace(self, camera=sim.camera, sim=sim, shown_cell=sim.workcell)
+            # Over a robot link, the images follow the joints that link reports.
+            camera = sim.camera if self.hardware is None else rendered_at(sim, self.robot)
+            return replace(self, camera=camera, sim=sim, shown_cell=sim.workcell)
         if self.hardware is None or self.hardware.request_rehang is None:
             raise ScannerError(
                 "this driver cannot ask for a re-hang (Hardware.request_rehang is None): scan "
@@ -138,9 +144,12 @@ def setup_world(
     stereo, X_FC = software_camera(config)
     check_stereo_reach(config, stereo)
     sim = hardware = None
-    if config.driver:
-        hardware = load_hardware(config.driver, config)
-        if config.auto_hangings and hardware.request_rehang is None:
+    if config.driver or config.hardware is not None:
+        if config.driver:
+            hardware = load_hardware(config.driver, config)
+        else:
+            hardware, sim = connect_cell(config, stereo, meshcat, hanging, X_WO)
+        if config.auto_hangings and hardware.request_rehang is None and sim is None:
             raise ScannerError(
                 "hangings: 'auto' needs a driver that can ask for a re-hang "
                 "(Hardware.request_rehang); this one cannot: scan with --hangings 1 and "
@@ -155,10 +164,42 @@ def setup_world(
     roadmaps = config.planner.cache_dir or str(cache_dir() / "roadmaps")
     planner = Planner(planner_cell, X_FC, stereo.X_CR, replace(config.planner, cache_dir=roadmaps))
     if hardware:
+        shown = sim.workcell if sim is not None else planner_cell
         return ScanWorld(
-            hardware.robot, hardware.camera, planner, stereo, X_FC, None, planner_cell, hardware
+            hardware.robot, hardware.camera, planner, stereo, X_FC, sim, shown, hardware
         )
     return ScanWorld(sim.robot, sim.camera, planner, stereo, X_FC, sim, sim.workcell)
+
+
+def rendered_at(sim: Simulation, robot: RobotDriver) -> StereoCameraDriver:
+    """The simulated cell's stereo camera placed by the joints `robot` reports (plus the
+    simulated encoder offsets): a camera for the controller emulator, whose images follow the
+    arm the wire reports, not the simulator's own arm."""
+    offsets = sim.truth.joint_offsets_rad
+    return SimulatedStereoCamera(sim.workcell, sim.truth, lambda: robot.joint_positions() + offsets)
+
+
+def connect_cell(
+    config: ScanConfig, stereo: StereoCamera, meshcat, hanging: int, X_WO: np.ndarray | None
+) -> tuple[Hardware, Simulation | None]:
+    """The `hardware:` section's robot link and camera (and, for the simulated camera, the
+    simulated cell it renders: its truth then judges the result)."""
+    robot = connect_val3(config.hardware.robot)
+    try:
+        if config.hardware.camera.kind == "simulated":
+            sim = simulated_cell(config, meshcat, hanging, X_WO)
+            return Hardware(robot, rendered_at(sim, robot)), sim
+        camera = open_stereo_camera(config.hardware.camera, stereo.image_size)
+    except BaseException:
+        robot.close()
+        raise
+    rehang = ask_operator if sys.stdin.isatty() else None
+    return Hardware(robot, camera, rehang), None
+
+
+def ask_operator(message: str) -> None:
+    """A re-hang request on the console: the operator re-hangs, then presses Enter."""
+    input(f"{message}\nPress Enter when the object hangs still: ")
 
 
 class WatchedRobot(RobotDriver):
@@ -166,6 +207,7 @@ class WatchedRobot(RobotDriver):
 
     def __init__(self, robot: RobotDriver, live, joint_offsets_rad: np.ndarray) -> None:
         self._robot, self._live, self._offsets = robot, live, joint_offsets_rad
+        self.motion = robot.motion
 
     def joint_positions(self) -> np.ndarray:
         return self._robot.joint_positions()
