@@ -150,9 +150,7 @@ def encode_status(status: RobotStatus) -> bytes:
 
 def decode_traj_pt(body: bytes, joints: int = 6) -> JointTrajPt:
     values = JOINT_TRAJ_PT_BODY.unpack(body)
-    return JointTrajPt(
-        values[0], np.array(values[1 : 1 + joints], float), values[11], values[12]
-    )
+    return JointTrajPt(values[0], np.array(values[1 : 1 + joints], float), values[11], values[12])
 
 
 def decode_joint_position(body: bytes, joints: int = 6) -> np.ndarray:
