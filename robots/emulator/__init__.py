@@ -1,0 +1,1 @@
+"""Emulators of robot controllers, for testing drivers without the robot."""
