@@ -112,7 +112,7 @@ def test_opencv_is_a_4x_release_with_hand_eye_calibration():
 # them). A newcomer reads the package list in this order as the pipeline runs.
 SCANNER_LAYERS = (
     ("commands",),
-    ("calibrate", "plan_only"),
+    ("calibrate", "check_cell", "plan_only"),
     ("scan",),
     ("reconstruct", "inspect"),
     ("scan_dir",),

@@ -198,14 +198,23 @@ class Val3Robot(RobotDriver):
         """Send points 1.. in order (each resent while the queue is full), watching the arm;
         returns how many points were accepted (all of them)."""
         for k in range(1, len(points)):
-            deadline = time.monotonic() + self._drain_time_s(points)
+            refused_at = time.monotonic()
+            deadline = refused_at + self._drain_time_s(points)
             while not self._send_point(points[k]):
-                self._watch(points, k - 1)
-                if time.monotonic() > deadline:
+                state = self._watch(points, k - 1)
+                # FAILURE means a full queue or a point the controller will never take (its
+                # joint limits): once the arm rests on the last accepted point, with a STATUS
+                # newer than the refusal, the queue is empty and the point itself is refused.
+                idle = (
+                    state.status_at_s > refused_at
+                    and state.status.in_motion == 0
+                    and np.abs(state.joints_rad - points[k - 1]).max() <= ARRIVAL_TOLERANCE_RAD
+                )
+                if idle or time.monotonic() > deadline:
+                    why = "with its queue empty" if idle else "until its queue should have drained"
                     raise RobotStoppedError(
-                        f"robot: the controller refused point {k} of {len(points) - 1} until "
-                        "its queue should have drained (outside its joint limits, or a stuck "
-                        "motion task); the arm was stopped"
+                        f"robot: the controller refused point {k} of {len(points) - 1} {why} "
+                        "(outside its joint limits?); the arm was stopped"
                     )
                 time.sleep(RESEND_PERIOD_S)
             self._watch(points, k)

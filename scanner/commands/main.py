@@ -11,6 +11,7 @@ import sys
 from reconstruction.common.errors import ScannerError
 from scanner.commands.arguments import ScannerArgumentParser
 from scanner.commands.calibrate_arguments import add_calibrate_parser
+from scanner.commands.cell import add_check_cell_parser, add_emulate_parser
 from scanner.commands.exchange import add_export_parser, add_import_parser
 from scanner.commands.inspect import add_inspect_parser
 from scanner.commands.monitor import add_monitor_parser
@@ -37,6 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_import_parser(sub)
     add_inspect_parser(sub)
     add_monitor_parser(sub)
+    add_check_cell_parser(sub)
+    add_emulate_parser(sub)
     return parser
 
 

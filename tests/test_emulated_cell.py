@@ -1,0 +1,200 @@
+"""A whole scan over the wire: `scanner scan` with a hardware: section drives the controller
+emulator over TCP and renders the cell at the joints the state port reports. It reaches the same
+views and the same model as the simulator-driven scan; check-cell passes against it; a link that
+fails mid-scan interrupts the scan, which resumes; bad hardware configurations are one line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from robots.emulator.val3_server import EmulatorSettings, Val3Emulator
+from robots.simulation.cell import HOME_Q
+from tests.tiny_scan import TINY_SCAN
+
+pytestmark = pytest.mark.slow
+
+
+def emulator_settings(**fields) -> EmulatorSettings:
+    return replace(
+        EmulatorSettings(),
+        motion_port=0,
+        state_port=0,
+        connect_delay_s=0.05,
+        time_scale=20.0,
+        **fields,
+    )
+
+
+def hardware_config(tmp_path: Path, em: Val3Emulator, name: str = "cell.yaml", **extra) -> Path:
+    config = dict(TINY_SCAN) | {
+        "hardware": {
+            "robot": {
+                "host": "127.0.0.1",
+                "motion_port": em.motion_address[1],
+                "state_port": em.state_address[1],
+                "speed_fraction": 0.5,
+            },
+            "camera": {"kind": "simulated"},
+        }
+    }
+    config |= extra
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def scanner(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "scanner", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+
+
+def views_and_joints(scan_dir: Path) -> dict[int, np.ndarray]:
+    manifest = yaml.safe_load((scan_dir / "scan.yaml").read_text())
+    out = {}
+    for entry in sorted((scan_dir / "captures").iterdir()):
+        pose = yaml.safe_load((entry / "capture.yaml").read_text())
+        out[int(pose["pose_index"])] = np.array(pose["q_rad"], float)
+    assert manifest["status"] in ("complete", "reconstructed")
+    return out
+
+
+def test_a_scan_over_the_wire_matches_the_simulated_scan(tiny_scan, tmp_path):
+    with Val3Emulator(emulator_settings(), HOME_Q).start() as em:
+        r = scanner("scan", "--config", hardware_config(tmp_path, em), "--out", tmp_path / "s")
+        assert r.returncode == 0, r.stderr
+        # Every point the controller got was a checked joint-linear waypoint at the speed
+        # asked for, and the arm stopped nowhere else.
+        assert em.received and all(p.velocity == pytest.approx(0.5) for p in em.received)
+    wire = views_and_joints(tmp_path / "s")
+    simulated = views_and_joints(tiny_scan.scan_dir)
+    assert sorted(wire) == sorted(simulated)
+    for view, q in wire.items():
+        # float32 on the wire: the arm arrives within 1e-6 rad of where the simulator's did
+        assert np.abs(q - simulated[view]).max() < 1e-5
+    report = json.loads((tmp_path / "s" / "results" / "report.json").read_text())
+    same, ref = report["surfaces"], tiny_scan.report["surfaces"]
+    for surface in ref:
+        a = same[surface]["chamfer_observed_mm"]
+        b = ref[surface]["chamfer_observed_mm"]
+        assert a == pytest.approx(b, rel=0.02, abs=0.005), surface
+
+
+def test_check_cell_passes_against_the_emulator_and_fails_on_an_emergency_stop(tmp_path):
+    with Val3Emulator(emulator_settings(), HOME_Q).start() as em:
+        config = hardware_config(tmp_path, em)
+        r = scanner("check-cell", "--config", config)
+        assert r.returncode == 0, r.stdout + r.stderr
+        lines = r.stdout.splitlines()
+        for item in ("robot link", "controller", "joints", "camera", "exposure", "sharpness"):
+            assert any(line.startswith("ok") and item in line for line in lines), item
+        assert any(line.startswith("ok") and "first move" in line for line in lines)
+        assert lines[-1] == "READY: a scan can start"
+        assert em.received == []  # nothing was sent to the motion port: nothing moved
+        em.e_stop()
+        r = scanner("check-cell", "--config", config)
+        assert r.returncode == 4
+        assert any(
+            line.startswith("FAIL") and "emergency stop" in line for line in r.stdout.splitlines()
+        )
+        assert r.stdout.splitlines()[-1].startswith("NOT READY: controller")
+        assert np.abs(em.joint_positions() - HOME_Q).max() < 1e-6
+
+
+def test_a_link_lost_mid_scan_interrupts_it_and_the_scan_resumes(tmp_path):
+    with Val3Emulator(emulator_settings(), HOME_Q).start() as em:
+        config = hardware_config(tmp_path, em, reconstruct=False)
+        # The connections drop once the controller has taken 40 points (in the third motion
+        # or so): a watcher, as a cable pulled out would.
+        done = threading.Event()
+
+        def pull_the_cable():
+            while not done.is_set() and len(em.received) < 40:
+                done.wait(0.005)
+            em.drop_connections()
+
+        watcher = threading.Thread(target=pull_the_cable, daemon=True)
+        watcher.start()
+        r = scanner("scan", "--config", config, "--out", tmp_path / "s")
+        done.set()
+        watcher.join()
+        assert r.returncode == 5, r.stderr
+        message = r.stderr.strip().splitlines()
+        assert len(message) == 1 and "Traceback" not in r.stderr
+        assert "robot link" in message[0] and "scanner scan --resume" in message[0]
+        manifest = yaml.safe_load((tmp_path / "s" / "scan.yaml").read_text())
+        assert manifest["status"] == "interrupted"
+        kept = set(views_and_joints_partial(tmp_path / "s"))
+        r = scanner("scan", "--resume", tmp_path / "s")
+        assert r.returncode == 0, r.stderr
+        assert kept < set(views_and_joints_partial(tmp_path / "s"))
+
+
+def views_and_joints_partial(scan_dir: Path) -> list[int]:
+    return [
+        int(yaml.safe_load((e / "capture.yaml").read_text())["pose_index"])
+        for e in (scan_dir / "captures").iterdir()
+        if (e / "capture.yaml").exists()
+    ]
+
+
+@pytest.mark.parametrize(
+    "hardware, expected",
+    [
+        ({"robot": {"kind": "kuka"}}, "hardware.robot.kind: 'kuka' is not one of staubli_val3"),
+        ({"camera": {"kind": "opencv", "right": None}}, "hardware.camera.right: expected"),
+        ({"robot": {"motion_port": "eleven"}}, "hardware.robot.motion_port: expected an integer"),
+        (
+            {"camera": {"kind": "opencv", "left": "missing_%04d.png", "right": "m_%04d.png"}},
+            "hardware.camera.left: cannot open 'missing_%04d.png'",
+        ),
+    ],
+)
+def test_bad_hardware_sections_are_one_line_and_nothing_moves(tmp_path, hardware, expected):
+    with Val3Emulator(emulator_settings(), HOME_Q).start() as em:
+        base = {
+            "robot": {"motion_port": em.motion_address[1], "state_port": em.state_address[1]},
+            "camera": {"kind": "simulated"},
+        }
+        section = {k: base[k] | hardware.get(k, {}) for k in base}
+        path = tmp_path / "bad.yaml"
+        path.write_text(yaml.safe_dump(dict(TINY_SCAN) | {"hardware": section}))
+        r = scanner("scan", "--config", path, "--out", tmp_path / "s")
+        assert r.returncode == 2, r.stderr
+        assert expected in r.stderr and len(r.stderr.strip().splitlines()) == 1
+        assert em.received == []
+
+
+def test_an_unreachable_controller_stops_the_scan_before_anything(tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    path = tmp_path / "cell.yaml"
+    hardware = {
+        "robot": {"motion_port": port, "connect_timeout_s": 0.5},
+        "camera": {"kind": "simulated"},
+    }
+    path.write_text(yaml.safe_dump(dict(TINY_SCAN) | {"hardware": hardware}))
+    for command in ("scan", "check-cell"):
+        args = ["--config", path] + (["--out", tmp_path / "s"] if command == "scan" else [])
+        r = scanner(command, *args)
+        assert r.returncode == 2
+        assert r.stderr.strip() == (
+            f"scanner: error: hardware.robot.motion_port: cannot connect to 127.0.0.1:{port} "
+            "(Connection refused); expected the VAL 3 ROS server of the arm's controller"
+        )
+        assert not (tmp_path / "s").exists()
