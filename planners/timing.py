@@ -42,13 +42,17 @@ def straight_line_time_s(
 
     Every joint moves in proportion along a straight line, so the slowest joint's own
     trapezoidal (or triangular) profile sets the time: this is exact for a straight move and a
-    lower bound for any path between the same two configurations.
+    lower bound for any path between the same two configurations. Rounded to a microsecond:
+    options whose time is set by the same slowest joint tie exactly (camera rolls differing
+    only in J6), and unrounded, the last bits of the start joints (float32 from a controller's
+    state port) would choose between them, so a scan over the wire would visit other options
+    than the same scan in simulation.
     """
     d = np.abs(np.asarray(dq_rad, float))
     v, a = np.asarray(velocity_rad_s, float), np.asarray(acceleration_rad_s2, float)
     triangular = d <= v * v / a
     t = np.where(triangular, 2 * np.sqrt(d / a), d / v + v / a)
-    return np.max(t, axis=-1)
+    return np.round(np.max(t, axis=-1), 6)
 
 
 @dataclass(frozen=True)
