@@ -217,3 +217,42 @@ def test_an_unreachable_controller_stops_the_scan_before_anything(tmp_path):
             "(Connection refused); expected the VAL 3 ROS server of the arm's controller"
         )
         assert not (tmp_path / "s").exists()
+
+
+def _recording(folder: Path, size: tuple[int, int], frames: int = 3) -> dict:
+    """A recorded stereo pair sequence (textured, well exposed) as OpenCV reads it back."""
+    rng = np.random.default_rng(0)
+    folder.mkdir()
+    for k in range(frames):
+        for side in ("left", "right"):
+            texture = rng.integers(40, 220, (size[1] // 4, size[0] // 4, 3), dtype=np.uint8)
+            image = cv2.resize(texture, size, interpolation=cv2.INTER_NEAREST)
+            cv2.imwrite(str(folder / f"{side}_{k:04d}.png"), image)
+    return {
+        "kind": "opencv",
+        "left": str(folder / "left_%04d.png"),
+        "right": str(folder / "right_%04d.png"),
+    }
+
+
+def test_check_cell_with_a_recorded_opencv_camera(tmp_path):
+    """The OpenCV camera path end to end: a recording of the calibrated size passes; one of
+    another size is refused in one line before anything moves."""
+    with Val3Emulator(emulator_settings(), HOME_Q).start() as em:
+        width, height = TINY_SCAN["camera"]["width_px"], TINY_SCAN["camera"]["height_px"]
+        for name, size, code in (("good", (width, height), 0), ("small", (160, 120), 2)):
+            camera = _recording(tmp_path / name, size)
+            path = hardware_config(tmp_path, em, f"{name}.yaml")
+            config = yaml.safe_load(path.read_text())
+            config["hardware"]["camera"] = camera
+            path.write_text(yaml.safe_dump(config))
+            r = scanner("check-cell", "--config", path)
+            assert r.returncode == code, r.stdout + r.stderr
+            if code == 0:
+                assert f"ok    camera       a pair of {width}x{height} images" in r.stdout
+            else:
+                assert r.stderr.strip() == (
+                    "scanner: error: hardware.camera.left: delivers 160x120 images, the "
+                    f"calibration expects {width}x{height}"
+                )
+        assert em.received == []

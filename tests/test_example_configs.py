@@ -17,6 +17,7 @@ def test_every_example_is_tested():
         "default.yaml",
         "two-hangings.yaml",
         "hardware.yaml",
+        "emulated-cell.yaml",
         "monitor.yaml",
     }
 
@@ -34,9 +35,25 @@ def test_the_default_example_is_the_built_in_default():
         (
             "hardware.yaml",
             {
-                "driver": "my_cell.rx60:connect",
+                "driver": None,
+                "hardware.robot.kind": "staubli_val3",
+                "hardware.robot.host": "192.168.0.254",
+                "hardware.robot.motion_port": 11000,
+                "hardware.robot.state_port": 11002,
+                "hardware.camera.kind": "opencv",
+                "hardware.camera.left": 0,
+                "hardware.camera.right": 1,
                 "calibration_file": "calibration/calibration.yaml",
                 "views.radius_m": 0.5,
+                "hangings": 1,
+            },
+        ),
+        (
+            "emulated-cell.yaml",
+            {
+                "hardware.robot.host": "127.0.0.1",
+                "hardware.robot.motion_port": 11000,
+                "hardware.camera.kind": "simulated",
                 "hangings": 1,
             },
         ),

@@ -42,20 +42,22 @@ def add_check_cell_parser(sub) -> None:
         f"{EXIT_NOT_READY} when an item failed, 2 when the configuration does not fit the cell.",
     )
     add_config_file_argument(
-        check, "the scan configuration (YAML) with the hardware: section to check"
+        check,
+        "the scan configuration (YAML) with the hardware: section to check (default: none; "
+        "then --driver is required)",
     )
     check.add_argument(
         "--calibration",
         type=path_arg,
-        help="the calibration file the scan will use (image size, X_FC); default: the "
-        "configuration's calibration_file",
+        help="the calibration file the scan will use (image size, X_FC) (default: the "
+        "configuration's calibration_file)",
     )
     add_driver_argument(check, "check a cell")
     check.add_argument(
         "--board",
         action="store_true",
         help="also require the calibration board (the calibrate command's default board) in "
-        "both images",
+        "both images (default: off)",
     )
 
 

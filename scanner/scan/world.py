@@ -190,6 +190,8 @@ def connect_cell(
             sim = simulated_cell(config, meshcat, hanging, X_WO)
             return Hardware(robot, rendered_at(sim, robot)), sim
         camera = open_stereo_camera(config.hardware.camera, stereo.image_size)
+        # A camera delivering other images than calibrated is refused before anything moves.
+        camera.check_size()
     except BaseException:
         robot.close()
         raise
