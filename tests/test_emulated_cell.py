@@ -256,3 +256,31 @@ def test_check_cell_with_a_recorded_opencv_camera(tmp_path):
                     f"calibration expects {width}x{height}"
                 )
         assert em.received == []
+
+
+def test_calibrate_over_the_wire(tmp_path):
+    """`scanner calibrate` with a hardware: section: the stations are visited through the
+    controller emulator and the board is seen by the simulated camera at the reported joints;
+    the hand-eye result is as good as in simulation."""
+    with Val3Emulator(emulator_settings(), HOME_Q).start() as em:
+        path = tmp_path / "calibrate.yaml"
+        config = {
+            "stations": {"count": 8},
+            "hardware": {
+                "robot": {
+                    "motion_port": em.motion_address[1],
+                    "state_port": em.state_address[1],
+                    "speed_fraction": 0.5,
+                },
+                "camera": {"kind": "simulated"},
+            },
+        }
+        path.write_text(yaml.safe_dump(config))
+        r = scanner("calibrate", "--config", path, "--out", tmp_path / "cal")
+        assert r.returncode == 0, r.stdout + r.stderr
+        assert em.received
+    report = json.loads((tmp_path / "cal" / "results" / "report.json").read_text())
+    assert report["poses_used"] == 8 and report["stations_skipped"] == []
+    # measured: 0.11 mm / 0.012 deg (the simulated calibration of 8 stations is as good)
+    assert report["truth"]["handeye_error_mm"] < 0.5
+    assert report["truth"]["handeye_error_deg"] < 0.05

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from reconstruction.stereo.camera_model import StereoCamera, default_stereo_camera
+from robots.drivers.interfaces import RobotDriver
 from robots.models import camera_tool
 from robots.models.objects import ObjectMesh, mesh_fingerprint, resolve_object, write_textured_obj
 from robots.models.rx60 import RX60
@@ -101,6 +102,14 @@ def _assemble(
     )
     camera = SimulatedStereoCamera(workcell, truth, sim_robot.true_joint_positions)
     return Simulation(workcell, truth, sim_robot, camera, mesh)
+
+
+def camera_at_reported_joints(sim: Simulation, robot: RobotDriver) -> SimulatedStereoCamera:
+    """The simulated cell's stereo camera placed by the joints `robot` reports (plus the
+    simulated encoder offsets), not by the simulator's own arm: with the controller emulator,
+    the images follow the arm the wire reports."""
+    offsets = sim.truth.joint_offsets_rad
+    return SimulatedStereoCamera(sim.workcell, sim.truth, lambda: robot.joint_positions() + offsets)
 
 
 def rehang(

@@ -13,6 +13,7 @@ from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.checks import check_fields, integer, positive
 from reconstruction.common.errors import ScannerError
 from reconstruction.stereo.camera_model import StereoDesign
+from robots.drivers.settings import HardwareConfig
 from robots.models.calibration_board import BoardPlacement
 from robots.models.workcell import WorkcellConfig
 from robots.simulation.blinking_marker import MarkerConfig
@@ -77,6 +78,16 @@ class CalibrateConfig:
     # robots.drivers.interfaces.Hardware);
     # the board then stands where `placement` says. None: the Drake simulation.
     driver: str | None = None
+    # Or a real cell from configuration (robot link, camera), as in a scan configuration; the
+    # camera kind "simulated" renders the simulated board cell at the joints the link reports.
+    hardware: HardwareConfig | None = None
+
+    def __post_init__(self) -> None:
+        if self.driver and self.hardware is not None:
+            raise ScannerError(
+                "hardware: a calibration runs on --driver MODULE:FACTORY or on a hardware: "
+                "section, not both"
+            )
 
 
 def load_calibrate_config(path: Path | None) -> CalibrateConfig:

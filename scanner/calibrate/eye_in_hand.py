@@ -18,6 +18,7 @@ from reconstruction.stereo.camera_model import (
     StereoCamera,
     stereo_camera_to_dict,
 )
+from robots.drivers.connect import close_all, connect_robot, open_camera
 from robots.drivers.interfaces import Hardware, RobotDriver, StereoCameraDriver, load_hardware
 from robots.models import camera_tool
 from robots.models.calibration_board import (
@@ -27,7 +28,12 @@ from robots.models.calibration_board import (
 )
 from robots.models.kinematics import Kinematics
 from robots.models.workcell import build_workcell
-from robots.simulation.cell import Simulation, cache_dir, create_simulation
+from robots.simulation.cell import (
+    Simulation,
+    cache_dir,
+    camera_at_reported_joints,
+    create_simulation,
+)
 from robots.simulation.truth import save_truth
 from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.offline import OfflineOptions, calibrate_directory
@@ -77,6 +83,8 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
     sim = None
     if config.driver:
         hardware = load_hardware(config.driver, config)
+    elif config.hardware is not None:
+        hardware, sim = _configured_cell(config, stereo, X_FC, (*fixtures, *extras))
     else:
         sim = create_simulation(
             config.cell, None, config.error_model, stereo, X_FC, extras=(*fixtures, *extras)
@@ -98,6 +106,22 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
         Kinematics(),
         Planner(planner_cell, X_FC, stereo.X_CR, planner_config),
     )
+
+
+def _configured_cell(config: CalibrateConfig, stereo, X_FC, extras):
+    """The hardware: section's robot link and camera (the simulated camera kind: the simulated
+    board cell, rendered at the joints the link reports)."""
+    robot = connect_robot(config.hardware.robot)
+    try:
+        if config.hardware.camera.kind == "simulated":
+            sim = create_simulation(
+                config.cell, None, config.error_model, stereo, X_FC, extras=extras
+            )
+            return Hardware(robot, camera_at_reported_joints(sim, robot)), sim
+        return Hardware(robot, open_camera(config.hardware.camera, stereo.image_size)), None
+    except BaseException:
+        close_all(robot)
+        raise
 
 
 def planner_reachable(world: CalibrationWorld):

@@ -159,10 +159,10 @@ def run_eye_to_hand(
     progress: Callable[[int, int], None] | None = None,
 ) -> dict:
     """Drive the marker over the grid, fit X_WS, evaluate on random held-out points."""
-    if config.driver:
+    if config.driver or config.hardware is not None:
         raise ScannerError(
             "eye-to-hand calibration runs in the simulator only (it renders the blinking "
-            "marker); drop the driver"
+            "marker); drop the driver and the hardware: section"
         )
     t0 = time.perf_counter()
     e2h = config.eye_to_hand

@@ -16,6 +16,7 @@ import numpy as np
 
 from planners.planner import PlanFailure
 from reconstruction.calibration.boards import BoardSpec, detect_board
+from robots.drivers.connect import close_all
 from robots.drivers.interfaces import CaptureError, StereoImages
 from scanner.configs.scan import ScanConfig
 from scanner.scan.run import new_scan_views
@@ -167,10 +168,7 @@ def check_cell(
             add(image_items(pair, limits, board))
         add([first_move_item(config, world)])
     finally:
-        for part in (world.robot, world.camera):
-            close = getattr(part, "close", None)
-            if close is not None:
-                close()
+        close_all(world.robot, world.camera)
     return items
 
 

@@ -17,13 +17,17 @@ from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.stereo.cloud import view_cloud
 from reconstruction.stereo.params import disparity_window, object_depth_window
 from reconstruction.stereo.rectification import compute_rectification
+from robots.drivers.connect import close_all, connect_robot, open_camera
 from robots.drivers.interfaces import Hardware, RobotDriver, StereoCameraDriver, load_hardware
-from robots.drivers.opencv_stereo import open_stereo_camera
-from robots.drivers.staubli_val3 import connect_val3
 from robots.models import camera_tool
 from robots.models.workcell import Workcell, build_workcell, keep_out_radius_m
-from robots.simulation.cell import Simulation, cache_dir, create_simulation, rehang
-from robots.simulation.stereo_camera import SimulatedStereoCamera
+from robots.simulation.cell import (
+    Simulation,
+    cache_dir,
+    camera_at_reported_joints,
+    create_simulation,
+    rehang,
+)
 from scanner.configs.scan import ScanConfig
 
 
@@ -51,7 +55,9 @@ class ScanWorld:
         if self.sim is not None:
             sim = rehang(self.sim, hanging, meshcat, operator, up_W)
             # Over a robot link, the images follow the joints that link reports.
-            camera = sim.camera if self.hardware is None else rendered_at(sim, self.robot)
+            camera = (
+                sim.camera if self.hardware is None else camera_at_reported_joints(sim, self.robot)
+            )
             return replace(self, camera=camera, sim=sim, shown_cell=sim.workcell)
         if self.hardware is None or self.hardware.request_rehang is None:
             raise ScannerError(
@@ -171,29 +177,19 @@ def setup_world(
     return ScanWorld(sim.robot, sim.camera, planner, stereo, X_FC, sim, sim.workcell)
 
 
-def rendered_at(sim: Simulation, robot: RobotDriver) -> StereoCameraDriver:
-    """The simulated cell's stereo camera placed by the joints `robot` reports (plus the
-    simulated encoder offsets): a camera for the controller emulator, whose images follow the
-    arm the wire reports, not the simulator's own arm."""
-    offsets = sim.truth.joint_offsets_rad
-    return SimulatedStereoCamera(sim.workcell, sim.truth, lambda: robot.joint_positions() + offsets)
-
-
 def connect_cell(
     config: ScanConfig, stereo: StereoCamera, meshcat, hanging: int, X_WO: np.ndarray | None
 ) -> tuple[Hardware, Simulation | None]:
     """The `hardware:` section's robot link and camera (and, for the simulated camera, the
     simulated cell it renders: its truth then judges the result)."""
-    robot = connect_val3(config.hardware.robot)
+    robot = connect_robot(config.hardware.robot)
     try:
         if config.hardware.camera.kind == "simulated":
             sim = simulated_cell(config, meshcat, hanging, X_WO)
-            return Hardware(robot, rendered_at(sim, robot)), sim
-        camera = open_stereo_camera(config.hardware.camera, stereo.image_size)
-        # A camera delivering other images than calibrated is refused before anything moves.
-        camera.check_size()
+            return Hardware(robot, camera_at_reported_joints(sim, robot)), sim
+        camera = open_camera(config.hardware.camera, stereo.image_size)
     except BaseException:
-        robot.close()
+        close_all(robot)
         raise
     rehang = ask_operator if sys.stdin.isatty() else None
     return Hardware(robot, camera, rehang), None
