@@ -318,3 +318,40 @@ def test_a_server_speaking_another_protocol_is_refused():
         for conn in accepted:
             conn.close()
         server.close()
+
+
+# --- the emulator as users run it -------------------------------------------------------------
+
+
+def test_emulate_controller_serves_until_stopped_and_refuses_a_busy_port():
+    import re
+    import subprocess
+    import sys
+
+    command = [sys.executable, "-m", "scanner", "emulate-controller"]
+    ports = ["--motion-port", "0", "--state-port", "0"]
+    process = subprocess.Popen(command + ports, stdout=subprocess.PIPE, text=True)
+    try:
+        first = process.stdout.readline()
+        found = re.search(r"on 127\.0\.0\.1: motion port (\d+), state port (\d+)", first)
+        assert found, first
+        motion, state = int(found[1]), int(found[2])
+        robot = Val3Robot(RobotLinkConfig(motion_port=motion, state_port=state))
+        try:
+            assert np.abs(robot.joint_positions() - HOME_Q).max() < 1e-6
+            assert robot.refusal() is None
+        finally:
+            robot.close()
+        # A port already taken (the running emulator's) is one line, exit 2.
+        busy = subprocess.run(
+            command + ["--motion-port", str(motion), "--state-port", "0"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert busy.returncode == 2
+        assert busy.stderr.startswith("scanner: error: --motion-port/--state-port: cannot listen")
+        assert len(busy.stderr.strip().splitlines()) == 1
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
