@@ -53,6 +53,18 @@ class StereoImages:
     stamp_s: float
 
 
+@dataclass(frozen=True, eq=False)
+class RgbdImages:
+    """One RGB-D capture: depth (H, W) uint16 counts of depth_scale_m metres each (0: no
+    depth), on the depth camera's grid; colour RGB uint8 (h, w, 3) on the colour camera's;
+    the capture time stamp."""
+
+    depth: np.ndarray
+    depth_scale_m: float
+    color: np.ndarray
+    stamp_s: float
+
+
 class RobotDriver(abc.ABC):
     """A 6-axis arm: report measured joints, execute a (validated) trajectory until at rest."""
 
@@ -76,6 +88,14 @@ class StereoCameraDriver(abc.ABC):
     @abc.abstractmethod
     def capture(self) -> StereoImages:
         """Grab a pair; raise CaptureError when the hardware could not deliver one."""
+
+
+class DepthCameraDriver(abc.ABC):
+    """A depth (RGB-D) camera on the flange: capture one depth image with its colour image."""
+
+    @abc.abstractmethod
+    def capture(self) -> RgbdImages:
+        """Grab a depth + colour pair; raise CaptureError when the device could not deliver."""
 
 
 class CaptureError(RuntimeError):
