@@ -63,7 +63,7 @@ def _rough_mount_calibration(scan_dir, path):
     X_FC = X_FC_true @ twist_to_pose([*(np.radians(10.0) * axis), *shift])
     start = handeye_error(X_FC, X_FC_true)
     assert start["handeye_error_mm"] == pytest.approx(40.0, abs=0.1)
-    save_calibration(Calibration(X_FC, scan.stereo, scan.stereo.left, "test"), path)
+    save_calibration(Calibration(X_FC, scan.camera_model, scan.camera_model.left, "test"), path)
     return path
 
 

@@ -37,11 +37,15 @@ def test_streamed_views_equal_the_offline_ones(streamed_scan):
 
     processing = scan.config.processing
     offline = capture_views(
-        scan, compute_rectification(scan.stereo), scan.X_FC_nominal, processing.stereo
+        scan, compute_rectification(scan.camera_model), scan.X_FC_nominal, processing.stereo
     )
     config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
     remove = geometry_filter(
-        scan.config, scan.X_FC_nominal, scan.stereo, offline.joints, processing.remove_margin_m
+        scan.config,
+        scan.X_FC_nominal,
+        scan.camera_model,
+        offline.joints,
+        processing.remove_margin_m,
     )
     views, clouds, _ = filter_views(offline.views, scan.X_FC_nominal, config, remove)
     for view, cloud in zip(views, clouds):

@@ -18,7 +18,13 @@ import yaml
 from reconstruction.common.checks import check_fields, integer, positive
 from reconstruction.common.transforms import check_pose
 from reconstruction.common.yaml_files import read_yaml
-from reconstruction.stereo.camera_model import CameraModelError, PinholeCamera
+from reconstruction.stereo.camera_model import (
+    CameraModelError,
+    PinholeCamera,
+    StereoCamera,
+    stereo_camera_from_dict,
+    stereo_camera_to_dict,
+)
 
 SCHEMA = "scanner.rgbd_camera/1"
 
@@ -27,7 +33,10 @@ SCHEMA = "scanner.rgbd_camera/1"
 class RgbdCamera:
     """color, depth: the two cameras' intrinsics and image sizes; X_CD (4x4): the depth frame in
     the colour frame; depth_scale_m: metres per depth count (the device's depth unit, times a
-    calibrated correction); min/max_depth_m: the range the device reports."""
+    calibrated correction); min/max_depth_m: the range the device reports;
+    depth_baseline_m: the baseline of its depth imagers (0: not known; its noise grows as
+    z^2 / (f b)); depth_correction: the factor calibration found between the depth the device
+    reports and the true one (a depth-scale error), applied to every depth."""
 
     color: PinholeCamera
     depth: PinholeCamera
@@ -35,6 +44,8 @@ class RgbdCamera:
     depth_scale_m: float
     min_depth_m: float
     max_depth_m: float
+    depth_baseline_m: float = 0.0
+    depth_correction: float = 1.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "X_CD", check_pose(self.X_CD, "rgbd camera X_CD"))
@@ -42,6 +53,10 @@ class RgbdCamera:
         if not (np.isfinite(self.depth_scale_m) and self.depth_scale_m > 0):
             raise CameraModelError(
                 f"depth_scale_m: expected a positive number, got {self.depth_scale_m}"
+            )
+        if not (np.isfinite(self.depth_correction) and 0.5 < self.depth_correction < 2.0):
+            raise CameraModelError(
+                f"depth_correction: expected a factor near 1, got {self.depth_correction}"
             )
         if not 0 < self.min_depth_m < self.max_depth_m:
             raise CameraModelError(
@@ -57,6 +72,17 @@ class RgbdCamera:
     @property
     def depth_size(self) -> tuple[int, int]:
         return (self.depth.width, self.depth.height)
+
+    @property
+    def X_CR(self) -> np.ndarray:
+        """The rig's second camera in C, as for a stereo pair: here the depth camera (the
+        planner aims the point between the two at the object; both must see it)."""
+        return self.X_CD
+
+    def eye_centres_W(self, X_WC: np.ndarray) -> np.ndarray:
+        """Colour and depth camera centres (2, 3) in W, the colour camera at X_WC: a surface
+        point counts as seen when both see it (the depth needs the one, the colour the other)."""
+        return np.stack([X_WC[:3, 3], (X_WC @ self.X_CD)[:3, 3]])
 
 
 @dataclass(frozen=True)
@@ -93,7 +119,13 @@ class DepthDesign:
         X_DC[:3, 3] = self.p_DC_m
         X_CD = np.linalg.inv(X_DC)
         return RgbdCamera(
-            color, depth, X_CD, self.depth_scale_m, self.min_depth_m, self.max_depth_m
+            color,
+            depth,
+            X_CD,
+            self.depth_scale_m,
+            self.min_depth_m,
+            self.max_depth_m,
+            self.baseline_m,
         )
 
 
@@ -120,6 +152,8 @@ def rgbd_camera_to_dict(model: RgbdCamera) -> dict:
         "depth_scale_m": float(model.depth_scale_m),
         "min_depth_m": float(model.min_depth_m),
         "max_depth_m": float(model.max_depth_m),
+        "depth_baseline_m": float(model.depth_baseline_m),
+        "depth_correction": float(model.depth_correction),
     }
 
 
@@ -150,9 +184,31 @@ def rgbd_camera_from_dict(d: dict, where: str = "rgbd camera") -> RgbdCamera:
             float(_require(d, "depth_scale_m", where)),
             float(_require(d, "min_depth_m", where)),
             float(_require(d, "max_depth_m", where)),
+            float(d.get("depth_baseline_m", 0.0)),
+            float(d.get("depth_correction", 1.0)),
         )
     except (CameraModelError, TypeError, ValueError) as e:
         raise CameraModelError(f"{where}: {e}") from None
+
+
+CameraModel = StereoCamera | RgbdCamera
+
+
+def camera_model_to_dict(model: CameraModel) -> dict:
+    """A stereo pair's or an RGB-D device's model as a file section (its schema says which)."""
+    if isinstance(model, RgbdCamera):
+        return rgbd_camera_to_dict(model)
+    return stereo_camera_to_dict(model)
+
+
+def camera_model_from_dict(d: dict, where: str) -> CameraModel:
+    if isinstance(d, dict) and d.get("schema") == SCHEMA:
+        return rgbd_camera_from_dict(d, where)
+    return stereo_camera_from_dict(d, where)
+
+
+def sensor_of(model: CameraModel) -> str:
+    return "rgbd" if isinstance(model, RgbdCamera) else "stereo"
 
 
 def save_rgbd_camera(model: RgbdCamera, path: Path) -> None:

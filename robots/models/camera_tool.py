@@ -50,6 +50,14 @@ def tool_collision_box() -> Box:
     return _box_from_extent(lo - COLLISION_MARGIN_M, hi + COLLISION_MARGIN_M)
 
 
+def rig_X_FC(X_CR: np.ndarray) -> np.ndarray:
+    """Nominal pose of the first camera C of a two-camera rig whose second camera sits at X_CR
+    in C: the rig centred on the flange axis (for a stereo pair, nominal_X_FC(baseline))."""
+    X_FC = nominal_X_FC(0.0)
+    X_FC[:2, 3] -= np.asarray(X_CR, float)[:2, 3] / 2
+    return X_FC
+
+
 def nominal_X_FC(baseline_m: float = 0.12) -> np.ndarray:
     """Nominal pose of the left optical frame C in the flange frame F (4x4)."""
     X_FC = np.eye(4)

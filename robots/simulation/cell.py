@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from reconstruction.depth.camera_model import RgbdCamera
 from reconstruction.stereo.camera_model import StereoCamera, default_stereo_camera
 from robots.drivers.interfaces import RobotDriver
 from robots.models import camera_tool
@@ -43,7 +44,7 @@ class Simulation:
     workcell: Workcell
     truth: Truth
     robot: SimulatedRobot
-    camera: SimulatedStereoCamera
+    camera: SimulatedStereoCamera  # or a SimulatedDepthCamera when the tool carries one
     object_mesh: ObjectMesh | None
 
 
@@ -59,11 +60,13 @@ def create_simulation(
     extras: Sequence[Callable] = (),
     hanging: int = 0,
     X_WO: np.ndarray | None = None,
+    rgbd: RgbdCamera | None = None,
 ) -> Simulation:
     """Build the true world for `object_spec` (built-in name or mesh path) and its error model.
 
     `object_spec=None` builds the cell without an object (calibration); `extras` are passed to
-    `build_workcell` (e.g. a calibration board).
+    `build_workcell` (e.g. a calibration board). `rgbd`: the tool carries this depth camera
+    (X_FC_nominal then places its colour camera) instead of the stereo pair.
     """
     stereo = stereo or default_stereo_camera()
     if X_FC_nominal is None:
@@ -71,7 +74,7 @@ def create_simulation(
     mesh = None if object_spec is None else resolve_object(object_spec, cell.object_size_m)
     if X_WO is None:  # else the pose the operator hung it in (a resumed scan's truth file)
         X_WO = hung_pose(cell.X_WO, error_model.seed, hanging)
-    truth = sample_truth(error_model, X_FC_nominal, stereo, X_WO)
+    truth = sample_truth(error_model, X_FC_nominal, stereo, X_WO, rgbd)
     sim_robot = SimulatedRobot(robot, truth.joint_offsets_rad, q0)
     return _assemble(cell, mesh, truth, sim_robot, meshcat, extras)
 
@@ -92,7 +95,7 @@ def _assemble(
         cell,
         obj,
         truth.X_FC,
-        truth.stereo.X_CR,
+        (truth.rgbd or truth.stereo).X_CR,
         sim_robot.robot,
         renderer=True,
         meshcat=meshcat,
@@ -100,16 +103,27 @@ def _assemble(
         include_object=mesh is not None,
         X_WO=truth.X_WO,
     )
-    camera = SimulatedStereoCamera(workcell, truth, sim_robot.true_joint_positions)
+    camera = simulated_camera(workcell, truth, sim_robot.true_joint_positions)
     return Simulation(workcell, truth, sim_robot, camera, mesh)
 
 
-def camera_at_reported_joints(sim: Simulation, robot: RobotDriver) -> SimulatedStereoCamera:
-    """The simulated cell's stereo camera placed by the joints `robot` reports (plus the
-    simulated encoder offsets), not by the simulator's own arm: with the controller emulator,
-    the images follow the arm the wire reports."""
+def simulated_camera(workcell: Workcell, truth: Truth, true_joint_positions):
+    """The tool's simulated sensor: the stereo pair, or the depth camera when the truth has one."""
+    if truth.rgbd is not None:
+        from robots.simulation.depth_camera import SimulatedDepthCamera
+
+        return SimulatedDepthCamera(
+            workcell, truth, true_joint_positions, truth.rgbd.depth_baseline_m
+        )
+    return SimulatedStereoCamera(workcell, truth, true_joint_positions)
+
+
+def camera_at_reported_joints(sim: Simulation, robot: RobotDriver):
+    """The simulated cell's camera placed by the joints `robot` reports (plus the simulated
+    encoder offsets), not by the simulator's own arm: with the controller emulator, the images
+    follow the arm the wire reports."""
     offsets = sim.truth.joint_offsets_rad
-    return SimulatedStereoCamera(sim.workcell, sim.truth, lambda: robot.joint_positions() + offsets)
+    return simulated_camera(sim.workcell, sim.truth, lambda: robot.joint_positions() + offsets)
 
 
 def rehang(

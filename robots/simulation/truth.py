@@ -17,6 +17,11 @@ import yaml
 from reconstruction.common.checks import check_fields, integer, non_negative
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import make_pose, rotation_about
+from reconstruction.depth.camera_model import (
+    RgbdCamera,
+    rgbd_camera_from_dict,
+    rgbd_camera_to_dict,
+)
 from reconstruction.stereo.camera_model import (
     StereoCamera,
     stereo_camera_from_dict,
@@ -42,6 +47,10 @@ class ErrorModel:
     handeye_rotation_rad: float = non_negative(math.radians(1.0))
     joint_offset_std_rad: float = non_negative(math.radians(0.01))
     image_noise_std: float = non_negative(2.0)
+    # RGB-D sensor: the true depth is the reported depth times (1 + this) (a depth-scale error,
+    # a known failure of such devices, which calibration estimates from the board). 0 by
+    # default: a device within its factory calibration.
+    depth_scale_error: float = 0.0
     # Who re-hangs the object between hangings (robots.simulation.operator): "instructed"
     # follows the scanner's instruction with a person's error, "random" ignores it.
     operator: str = "instructed"
@@ -64,6 +73,10 @@ class Truth:
     stereo: StereoCamera
     image_noise_std: float
     seed: int
+    # The RGB-D device as it truly is (None for a stereo scan) and its depth-scale error:
+    # a device reports depth / (1 + depth_scale_error).
+    rgbd: RgbdCamera | None = None
+    depth_scale_error: float = 0.0
 
     def __post_init__(self) -> None:
         for a in (self.X_FC, self.joint_offsets_rad, self.X_WO):
@@ -76,7 +89,11 @@ def _random_unit(rng: np.random.Generator) -> np.ndarray:
 
 
 def sample_truth(
-    error_model: ErrorModel, X_FC_nominal: np.ndarray, stereo: StereoCamera, X_WO: np.ndarray
+    error_model: ErrorModel,
+    X_FC_nominal: np.ndarray,
+    stereo: StereoCamera,
+    X_WO: np.ndarray,
+    rgbd: RgbdCamera | None = None,
 ) -> Truth:
     """True X_FC = nominal @ error, the error exactly of the configured size, random direction."""
     rng = np.random.default_rng(error_model.seed)
@@ -90,6 +107,8 @@ def sample_truth(
         stereo,
         error_model.image_noise_std,
         error_model.seed,
+        rgbd,
+        error_model.depth_scale_error if rgbd is not None else 0.0,
     )
 
 
@@ -103,6 +122,9 @@ def truth_to_dict(truth: Truth, extra: dict | None = None) -> dict:
         "seed": truth.seed,
         "stereo_camera": stereo_camera_to_dict(truth.stereo),
     }
+    if truth.rgbd is not None:
+        d["rgbd_camera"] = rgbd_camera_to_dict(truth.rgbd)
+        d["depth_scale_error"] = truth.depth_scale_error
     d.update(extra or {})
     return d
 
@@ -126,6 +148,10 @@ def load_truth(path: Path) -> tuple[Truth, dict]:
             stereo_camera_from_dict(d["stereo_camera"], f"{path}:stereo_camera"),
             float(d["image_noise_std"]),
             int(d["seed"]),
+            rgbd_camera_from_dict(d["rgbd_camera"], f"{path}:rgbd_camera")
+            if "rgbd_camera" in d
+            else None,
+            float(d.get("depth_scale_error", 0.0)),
         )
     except (OSError, yaml.YAMLError, KeyError, TypeError, AttributeError) as e:
         raise ScannerError(f"{path}: not a readable truth file ({e})") from None

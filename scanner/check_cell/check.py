@@ -163,7 +163,7 @@ def check_cell(
         except CaptureError as e:
             add([CheckItem("camera", False, f"no pair: {e}")])
         else:
-            w, h = world.stereo.image_size
+            w, h = world.camera_model.image_size
             add([CheckItem("camera", True, f"a pair of {w}x{h} images, as calibrated")])
             add(image_items(pair, limits, board))
         add([first_move_item(config, world)])

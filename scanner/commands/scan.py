@@ -102,6 +102,14 @@ def add_scan_parser(sub) -> None:
         "was asked (the worst case) (default %(config_default)s)",
         config=ConfigDefault(SCAN_CONFIG, "error_model.operator"),
     )
+    add_config_option(
+        scan,
+        "--sensor",
+        type=name_arg,
+        help="what measures depth: stereo (the stereo pair, SGBM) or rgbd (a depth camera with "
+        "a colour camera, configured under rgbd:) (default %(config_default)s)",
+        config=ConfigDefault(SCAN_CONFIG, "sensor"),
+    )
     scan.add_argument(
         "--monitor",
         action="store_true",
@@ -197,6 +205,7 @@ def run_scan_command(args: argparse.Namespace) -> int:
         monitor=args.monitor or None,
         intruder_start_s=args.intruder,
         operator=args.operator,
+        sensor=args.sensor,
     )
     if args.plan_only and (args.resume is not None or args.meshcat):
         raise ScannerError("--plan-only plans a new scan: do not give --resume or --meshcat")

@@ -13,6 +13,7 @@ from planners.planner import PlannerConfig
 from reconstruction.common.checks import check_fields, fraction, integer, non_negative, positive
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.yaml_files import read_yaml
+from reconstruction.depth.camera_model import DepthDesign
 from reconstruction.pipeline import ReconstructionConfig
 from reconstruction.stereo.camera_model import StereoDesign
 from reconstruction.stereo.params import StereoParams
@@ -25,6 +26,8 @@ from scanner.configs.flags import for_flag
 from scanner.configs.typed_yaml import from_dict, load_yaml_file, to_dict
 from scanner.configs.views import ViewpointConfig
 from scanner.monitor.cell_monitor import MonitorSettings
+
+SENSORS = ("stereo", "rgbd")
 
 
 @dataclass(frozen=True)
@@ -81,6 +84,10 @@ class ScanConfig:
     # The nominal stereo camera (what the software believes; the simulator's truth equals it
     # unless a calibration file says otherwise).
     camera: StereoDesign = field(default_factory=StereoDesign)
+    # What measures depth: "stereo" (the pair above, SGBM) or "rgbd" (an active depth camera
+    # with a colour camera beside it, `rgbd:`; a RealSense D415-class device by default).
+    sensor: str = "stereo"
+    rgbd: DepthDesign = field(default_factory=DepthDesign)
     views: ViewpointConfig = field(default_factory=ViewpointConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     error_model: ErrorModel = field(default_factory=ErrorModel)
@@ -122,6 +129,8 @@ class ScanConfig:
             raise ScannerError(
                 f"coverage_target: expected a fraction in (0, 1], got {self.coverage_target}"
             )
+        if self.sensor not in SENSORS:
+            raise ScannerError(f"sensor: expected one of {', '.join(SENSORS)}, got {self.sensor!r}")
         if self.driver and self.hardware is not None:
             raise ScannerError(
                 "hardware: a scan runs on --driver MODULE:FACTORY or on a hardware: section, "
@@ -185,6 +194,7 @@ def with_overrides(
     monitor: bool | None = None,
     intruder_start_s: tuple[float, ...] | None = None,
     operator: str | None = None,
+    sensor: str | None = None,
 ) -> ScanConfig:
     """Command-line flags win over the file; each override is validated like the file, and
     an error names the flag."""
@@ -209,6 +219,8 @@ def with_overrides(
         config = replace(config, error_model=model)
     if calibration_file is not None:
         config = replace(config, calibration_file=calibration_file)
+    if sensor is not None:
+        config = for_flag("--sensor", lambda: replace(config, sensor=sensor))
     if driver is not None:
         config = replace(config, driver=driver)
     if max_extra_views is not None:

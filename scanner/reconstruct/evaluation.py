@@ -37,7 +37,9 @@ def _true_eyes(views: Gathered, to_first: list[np.ndarray]) -> dict[int, np.ndar
     for i, q in views.joints.items():
         truth = views.truths[views.scan_of[i]][0]
         X_WC = kin.X_WF(q + truth.joint_offsets_rad) @ truth.X_FC
-        eyes[i] = transform_points(to_first[hanging_of[i]], truth.stereo.eye_centres_W(X_WC))
+        eyes[i] = transform_points(
+            to_first[hanging_of[i]], (truth.rgbd or truth.stereo).eye_centres_W(X_WC)
+        )
     return eyes
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from reconstruction.common.errors import ScannerError
-from reconstruction.stereo.camera_model import stereo_camera_to_dict
+from reconstruction.depth.camera_model import camera_model_to_dict
 from scanner.reconstruct.stages import (
     RECONSTRUCTION_MARKER,
     ReconstructRun,
@@ -36,9 +36,9 @@ def run_merge(
     if twice:
         raise ScannerError(f"{', '.join(twice)}: given more than once; merge distinct scans")
     scans = [open_scan(d) for d in scan_dirs]
-    first = stereo_camera_to_dict(scans[0].stereo)
+    first = camera_model_to_dict(scans[0].camera_model)
     for scan in scans[1:]:
-        if stereo_camera_to_dict(scan.stereo) != first:
+        if camera_model_to_dict(scan.camera_model) != first:
             raise ScannerError(
                 f"{scan.root}: made with another camera model than {scans[0].root}; merged "
                 "scans share one camera and one hand-eye transform"

@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
+from reconstruction.depth.camera_model import CameraModel, RgbdCamera
+from reconstruction.depth.cloud import view_rgbd_cloud
 from reconstruction.evaluation.metrics import TriangleSurface
 from reconstruction.pipeline import VIEW_THREADS, ReconstructionConfig, filter_views
 from reconstruction.registration.views import ViewCloud
-from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.stereo.cloud import depth_image, view_cloud
 from reconstruction.stereo.params import StereoParams
 from reconstruction.stereo.rectification import Rectification, compute_rectification
@@ -42,7 +43,7 @@ class CaptureViews:
 
 def capture_views(
     scan: SavedScan,
-    rect: Rectification,
+    sensor: Sensor,
     X_FC: np.ndarray,
     params: StereoParams,
     indices: Sequence[int] | None = None,
@@ -61,7 +62,7 @@ def capture_views(
         if index in ready:
             return ready[index]
         try:
-            return stereo_view(scan, index, rect, X_FC, params)
+            return capture_view(scan, index, sensor, X_FC, params)
         except ScannerError as e:
             return e
 
@@ -78,29 +79,53 @@ def capture_views(
     return out
 
 
-def stereo_view(
+Sensor = Rectification | RgbdCamera
+
+
+def prepare_sensor(model: CameraModel) -> Sensor:
+    """What turning captures into clouds needs of a camera model: a stereo pair's
+    rectification (computed once), or the RGB-D device's model itself."""
+    return model if isinstance(model, RgbdCamera) else compute_rectification(model)
+
+
+def capture_view(
     scan: SavedScan,
     index: int,
-    rect: Rectification,
+    sensor: Sensor,
     X_FC: np.ndarray,
     params: StereoParams,
     capture: Capture | None = None,
 ) -> tuple[ViewCloud, np.ndarray]:
-    """One capture's stereo cloud and depth map, and its measured joint positions; a damaged
-    or mismatched capture raises ScannerError (its reason). `capture`: the capture as it was
-    just stored (its PNGs are lossless: reading them back gives the same arrays), else read."""
+    """One capture's cloud (stereo, or the depth camera's) and depth map, and its measured
+    joint positions; a damaged or mismatched capture raises ScannerError (its reason).
+    `capture`: the capture as it was just stored (its PNGs are lossless: reading them back
+    gives the same arrays), else read."""
     if capture is None:
         capture = scan.store.read_capture(index)
-    if capture.left.shape[1::-1] != rect.image_size:
+    rgbd = isinstance(sensor, RgbdCamera)
+    if capture.sensor != ("rgbd" if rgbd else "stereo"):
         raise ScannerError(
-            f"image size {capture.left.shape[1::-1]} differs from the camera model's"
+            f"a {capture.sensor} capture in a scan whose camera is "
+            f"{'an RGB-D device' if rgbd else 'a stereo pair'}"
         )
     centre = np.array(scan.config.scan_center_m, float)
     radius = keep_out_radius_m(scan.config.cell)
-    cloud = view_cloud(
-        rect, capture.left, capture.right, capture.X_WF @ X_FC, centre, radius, params
-    )
-    depth = depth_image(rect, cloud)
+    X_WC = capture.X_WF @ X_FC
+    if rgbd:
+        if capture.depth_scale_m != sensor.depth_scale_m:
+            raise ScannerError(
+                f"depth unit {capture.depth_scale_m} m differs from the device model's "
+                f"{sensor.depth_scale_m} m"
+            )
+        cloud = view_rgbd_cloud(sensor, capture.depth, capture.left, X_WC, centre, radius)
+        view = ViewCloud(index, cloud.points_C, cloud.colors, capture.X_WF, cloud.depth)
+        return view, capture.q_rad
+    if capture.left.shape[1::-1] != sensor.image_size:
+        raise ScannerError(
+            f"image size {capture.left.shape[1::-1]} differs from the camera model's"
+        )
+    cloud = view_cloud(sensor, capture.left, capture.right, X_WC, centre, radius, params)
+    depth = depth_image(sensor, cloud)
     return ViewCloud(index, cloud.points_C, cloud.colors, capture.X_WF, depth), capture.q_rad
 
 
@@ -123,7 +148,7 @@ def load_truth_of(scan_dir: Path):
 
 
 def geometry_filter(
-    config: ScanConfig, X_FC: np.ndarray, stereo: StereoCamera, joints: dict, margin_m: float
+    config: ScanConfig, X_FC: np.ndarray, stereo: CameraModel, joints: dict, margin_m: float
 ):
     from robots.models.point_filter import make_geometry_filter
     from robots.models.workcell import build_workcell
@@ -169,7 +194,7 @@ def gather_views(
     scans: list[SavedScan],
     processing: ProcessingConfig,
     X_FC: np.ndarray | None = None,
-    stereo: StereoCamera | None = None,
+    stereo: CameraModel | None = None,
     ready: Mapping[int, tuple[ViewCloud, np.ndarray]] | None = None,
     on_view: Callable[[], None] | None = None,
 ) -> Gathered:
@@ -179,11 +204,11 @@ def gather_views(
     out = Gathered([], [], {}, [], {}, [], None)
     filters = []
     for k, scan in enumerate(scans):
-        camera = stereo or scan.stereo
+        camera = stereo or scan.camera_model
         X = scan.X_FC_nominal if X_FC is None else X_FC
         captured = capture_views(
             scan,
-            compute_rectification(camera),
+            prepare_sensor(camera),
             X,
             processing.stereo,
             ready=ready if k == 0 else None,
@@ -207,13 +232,13 @@ def gather_views(
 
 
 def model_so_far(
-    scan: SavedScan, indices: Sequence[int], X_FC: np.ndarray, stereo: StereoCamera
+    scan: SavedScan, indices: Sequence[int], X_FC: np.ndarray, stereo: CameraModel
 ) -> tuple[FusedCloud, list[np.ndarray]]:
     """The fused cloud of some captures at their kinematic poses (no registration: a quick
     model to plan more views on), and their camera centres."""
     processing = scan.config.processing
     config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
-    captured = capture_views(scan, compute_rectification(stereo), X_FC, processing.stereo, indices)
+    captured = capture_views(scan, prepare_sensor(stereo), X_FC, processing.stereo, indices)
     remove = geometry_filter(scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m)
     views, clouds, _ = filter_views(captured.views, X_FC, config, remove)
     X_WC = [v.X_WF @ X_FC for v in views]

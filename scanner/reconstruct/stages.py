@@ -230,7 +230,7 @@ def _reconstruct(
 
         def eyes_of(index: int, X_WC: np.ndarray) -> np.ndarray:
             # A view saw what both of its cameras saw.
-            return (stereo or scans[views.scan_of[index]].stereo).eye_centres_W(X_WC)
+            return (stereo or scans[views.scan_of[index]].camera_model).eye_centres_W(X_WC)
 
         with timer("reconstruct"):
             result = reconstruct_views(
@@ -287,7 +287,7 @@ def _streamed_for(streamed, scan: SavedScan, processing, X_FC, stereo) -> tuple[
     if streamed is None:
         return {}, {}
     X = scan.X_FC_nominal if X_FC is None else X_FC
-    if streamed.key != settings_key(scan, processing, X, stereo or scan.stereo):
+    if streamed.key != settings_key(scan, processing, X, stereo or scan.camera_model):
         log.info("per-view results of the scan were made with other settings: recomputed")
         return {}, {}
     ready = {i: (v.view, v.q_rad) for i, v in streamed.views.items()}

@@ -21,13 +21,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
+from reconstruction.depth.camera_model import camera_model_to_dict
 from reconstruction.pipeline import VIEW_THREADS
 from reconstruction.registration.filtering import FilteredCloud, filter_view
 from reconstruction.registration.views import ViewCloud
-from reconstruction.stereo.camera_model import stereo_camera_to_dict
-from reconstruction.stereo.rectification import compute_rectification
 from scanner.configs.typed_yaml import to_dict
-from scanner.reconstruct.scan_views import geometry_filter, stereo_view, with_roi_centre
+from scanner.reconstruct.scan_views import (
+    capture_view,
+    geometry_filter,
+    prepare_sensor,
+    with_roi_centre,
+)
 from scanner.scan_dir.captures import Capture
 from scanner.scan_dir.manifest import SavedScan
 
@@ -40,7 +44,7 @@ def settings_key(scan: SavedScan, processing, X_FC: np.ndarray, stereo) -> tuple
         str(scan.root.resolve()),
         repr(to_dict(processing)),
         np.asarray(X_FC, float).tobytes(),
-        repr(stereo_camera_to_dict(stereo)),
+        repr(camera_model_to_dict(stereo)),
     )
 
 
@@ -80,12 +84,18 @@ class ViewStream:
         self._config = with_roi_centre(
             processing.reconstruction, np.array(scan.config.scan_center_m)
         )
-        self._rect = compute_rectification(scan.stereo)
+        self._sensor = prepare_sensor(scan.camera_model)
         self._joints: dict[int, np.ndarray] = {}
         self._remove = geometry_filter(
-            scan.config, scan.X_FC_nominal, scan.stereo, self._joints, processing.remove_margin_m
+            scan.config,
+            scan.X_FC_nominal,
+            scan.camera_model,
+            self._joints,
+            processing.remove_margin_m,
         )
-        self._result = StreamedViews(settings_key(scan, processing, scan.X_FC_nominal, scan.stereo))
+        self._result = StreamedViews(
+            settings_key(scan, processing, scan.X_FC_nominal, scan.camera_model)
+        )
         self._slots = threading.BoundedSemaphore(max_pending)
         self._pool = ThreadPoolExecutor(workers, thread_name_prefix="view-stream")
         self._futures: list[Future] = []
@@ -99,8 +109,8 @@ class ViewStream:
     def _process(self, index: int, capture: Capture | None = None) -> None:
         t0 = time.perf_counter()
         try:
-            view, q = stereo_view(
-                self.scan, index, self._rect, self.scan.X_FC_nominal, self._params, capture
+            view, q = capture_view(
+                self.scan, index, self._sensor, self.scan.X_FC_nominal, self._params, capture
             )
             self._joints[index] = q
             cloud = filter_view(

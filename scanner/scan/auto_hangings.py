@@ -22,7 +22,6 @@ from reconstruction.evaluation.metrics import SurfaceSamples, TriangleSurface
 from reconstruction.hangings.alignment import SeenSpace, align_pass
 from reconstruction.pipeline import filter_views, reconstruct_views
 from reconstruction.registration.filtering import o3d_cloud, refiltered
-from reconstruction.stereo.rectification import compute_rectification
 from reconstruction.surfaces.fixture import without_fixture
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds
 from scanner.configs.scan import ScanConfig
@@ -30,6 +29,7 @@ from scanner.reconstruct.scan_views import (
     capture_views,
     fixture_line,
     geometry_filter,
+    prepare_sensor,
     with_roi_centre,
 )
 from scanner.reconstruct.view_stream import ViewStream
@@ -86,9 +86,9 @@ class HangingAssessor:
             streamed = self.stream.so_far().views
             ready = {i: (streamed[i].view, streamed[i].q_rad) for i in indices if i in streamed}
             done = {i: streamed[i].cloud for i in ready if streamed[i].cloud is not None}
-        X_FC, stereo = scan.X_FC_nominal, scan.stereo
+        X_FC, stereo = scan.X_FC_nominal, scan.camera_model
         captured = capture_views(
-            scan, compute_rectification(stereo), X_FC, processing.stereo, indices, ready
+            scan, prepare_sensor(stereo), X_FC, processing.stereo, indices, ready
         )
         remove = geometry_filter(
             scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m
@@ -116,7 +116,7 @@ class HangingAssessor:
         fused = fuse_clouds(clouds, X_WC, config.surfaces.fused_voxel_size_m)
         keep = without_fixture(fused.points_W, [fixture_line(self.scan.config)])
         fused = FusedCloud(fused.points_W[keep], fused.colors[keep], fused.normals_W[keep])
-        stereo = self.scan.stereo
+        stereo = self.scan.camera_model
         return QuickPass(
             fused,
             [stereo.eye_centres_W(X) for X in X_WC],

@@ -212,9 +212,7 @@ class DecisionMaker:
                 log.warning("capture of view %d failed: %s", view.index, e)
                 continue
             q = self.robot.joint_positions()
-            capture = Capture(
-                view.index, self.pose_count, q, self._fk(q), pair.stamp_s, pair.left, pair.right
-            )
+            capture = Capture.of(view.index, self.pose_count, q, self._fk(q), pair)
             self._timer.call("store", self.store.write_capture, capture)
             if self.process is not None:
                 self._go(State.PROCESS)

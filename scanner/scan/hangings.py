@@ -61,7 +61,7 @@ def _decision_maker(
         Kinematics().X_WF,
         config.machine,
         process=with_stream(
-            live_cloud(live, config, world.stereo, world.X_FC) if live else None, stream
+            live_cloud(live, config, world.camera_model, world.X_FC) if live else None, stream
         ),
     )
 
@@ -214,7 +214,7 @@ class HangingRunner:
         indices = [i for i in self.hangings[hanging] if i in captured]
         with self.timer("next_best_view"):
             fused, centres = model_so_far(
-                open_scan(self.store.root), indices, self.world.X_FC, self.world.stereo
+                open_scan(self.store.root), indices, self.world.X_FC, self.world.camera_model
             )
             model = CoverageModel(fused, centres)
         centre = np.array(self.config.scan_center_m)

@@ -121,7 +121,7 @@ def _start_new(
         "hanging": 0,
         "views_per_hanging": count,
     }
-    manifest = new_manifest(config, world.stereo, world.X_FC, views, plan_info)
+    manifest = new_manifest(config, world.camera_model, world.X_FC, views, plan_info)
     store = CaptureStore.create(out_dir, manifest, force)
     if world.sim is not None:
         intruders = intruders_truth(config.monitor) if config.monitor.enabled else []

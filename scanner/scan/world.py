@@ -13,12 +13,20 @@ from planners.planner import Planner
 from reconstruction.calibration.file import load_calibration
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import transform_points
+from reconstruction.depth.camera_model import CameraModel, RgbdCamera
+from reconstruction.depth.cloud import view_rgbd_cloud
 from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.stereo.cloud import view_cloud
 from reconstruction.stereo.params import disparity_window, object_depth_window
 from reconstruction.stereo.rectification import compute_rectification
 from robots.drivers.connect import close_all, connect_robot, open_camera
-from robots.drivers.interfaces import Hardware, RobotDriver, StereoCameraDriver, load_hardware
+from robots.drivers.interfaces import (
+    DepthCameraDriver,
+    Hardware,
+    RobotDriver,
+    StereoCameraDriver,
+    load_hardware,
+)
 from robots.models import camera_tool
 from robots.models.workcell import Workcell, build_workcell, keep_out_radius_m
 from robots.simulation.cell import (
@@ -37,9 +45,9 @@ class ScanWorld:
     the camera model and X_FC the software believes (nominal or calibrated)."""
 
     robot: RobotDriver
-    camera: StereoCameraDriver
+    camera: StereoCameraDriver | DepthCameraDriver
     planner: Planner
-    stereo: StereoCamera
+    camera_model: CameraModel  # the stereo pair's or the RGB-D device's
     X_FC: np.ndarray
     sim: Simulation | None  # None on hardware: no truth
     shown_cell: Workcell | None  # the cell Meshcat shows (built with meshcat=)
@@ -78,21 +86,55 @@ class ScanWorld:
         return self.sim.truth.joint_offsets_rad if self.sim else np.zeros(6)
 
 
-def software_camera(config: ScanConfig) -> tuple[StereoCamera, np.ndarray]:
-    """The stereo model and X_FC the software believes: the calibration file's, else nominal."""
-    stereo = config.camera.stereo_camera()
-    X_FC = camera_tool.nominal_X_FC(stereo.baseline_m)
-    if config.calibration_file:
-        calibration = load_calibration(Path(config.calibration_file))
-        if calibration.stereo is None:
-            raise ScannerError(f"{config.calibration_file}: holds no stereo camera model")
-        if calibration.stereo.image_size != stereo.image_size:
+def software_camera(config: ScanConfig) -> tuple[CameraModel, np.ndarray]:
+    """The camera model and X_FC the software believes: the calibration file's, else nominal.
+    An RGB-D device keeps its own depth camera and extrinsics; a calibration gives X_FC and
+    its colour camera."""
+    if config.sensor == "rgbd":
+        model = config.rgbd.rgbd_camera()
+        X_FC = camera_tool.rig_X_FC(model.X_CR)
+    else:
+        model = config.camera.stereo_camera()
+        X_FC = camera_tool.nominal_X_FC(model.baseline_m)
+    if not config.calibration_file:
+        return model, X_FC
+    calibration = load_calibration(Path(config.calibration_file))
+    if config.sensor == "rgbd":
+        color = calibration.camera
+        if (color.width, color.height) != model.image_size:
             raise ScannerError(
-                f"{config.calibration_file}: calibrated for {calibration.stereo.image_size} "
-                f"images, the camera delivers {stereo.image_size}"
+                f"{config.calibration_file}: calibrated for {color.width}x{color.height} "
+                f"images, the colour camera delivers {model.image_size[0]}x{model.image_size[1]}"
             )
-        return calibration.stereo, calibration.X_FC
-    return stereo, X_FC
+        return replace(model, color=color), calibration.X_FC
+    if calibration.stereo is None:
+        raise ScannerError(f"{config.calibration_file}: holds no stereo camera model")
+    if calibration.stereo.image_size != model.image_size:
+        raise ScannerError(
+            f"{config.calibration_file}: calibrated for {calibration.stereo.image_size} "
+            f"images, the camera delivers {model.image_size}"
+        )
+    return calibration.stereo, calibration.X_FC
+
+
+def check_reach(config: ScanConfig, model: CameraModel) -> None:
+    """Refuse, before moving, a standoff at which the sensor cannot measure the object."""
+    radius = keep_out_radius_m(config.cell)
+    if config.views.radius_m <= radius:
+        raise ScannerError(
+            f"views.radius_m: {config.views.radius_m} m puts the camera inside the object's "
+            f"bounding sphere ({radius:.3f} m for a {config.cell.object_size_m} m object)"
+        )
+    if isinstance(model, RgbdCamera):
+        z_min, z_max = object_depth_window(config.views.radius_m, radius)
+        if z_min < model.min_depth_m or z_max > model.max_depth_m:
+            raise ScannerError(
+                f"views.radius_m: at {config.views.radius_m} m the object spans depths "
+                f"{z_min:.3f}-{z_max:.3f} m; the depth camera measures "
+                f"{model.min_depth_m}-{model.max_depth_m} m (rgbd.min_depth_m, max_depth_m)"
+            )
+        return
+    check_stereo_reach(config, model)
 
 
 def check_stereo_reach(config: ScanConfig, stereo: StereoCamera) -> None:
@@ -103,11 +145,6 @@ def check_stereo_reach(config: ScanConfig, stereo: StereoCamera) -> None:
     radius f r / d), else most of the object is never measured.
     """
     radius = keep_out_radius_m(config.cell)
-    if config.views.radius_m <= radius:
-        raise ScannerError(
-            f"views.radius_m: {config.views.radius_m} m puts the camera inside the object's "
-            f"bounding sphere ({radius:.3f} m for a {config.cell.object_size_m} m object)"
-        )
     rect = compute_rectification(stereo)
     z_min, z_max = object_depth_window(config.views.radius_m, radius)
     min_d, num_d = disparity_window(z_min, z_max, rect.focal_px, rect.baseline_m)
@@ -126,18 +163,21 @@ def check_stereo_reach(config: ScanConfig, stereo: StereoCamera) -> None:
 def simulated_cell(
     config: ScanConfig, meshcat=None, hanging: int = 0, X_WO: np.ndarray | None = None
 ) -> Simulation:
-    """The true simulated world of a scan: its object, error model and camera design
+    """The true simulated world of a scan: its object, error model and sensor design
     (`X_WO`: where the operator hung the object for this hanging, when it is known)."""
     design = config.camera.stereo_camera()
+    rgbd = config.rgbd.rgbd_camera() if config.sensor == "rgbd" else None
+    X_FC = camera_tool.rig_X_FC(rgbd.X_CR) if rgbd else camera_tool.nominal_X_FC(design.baseline_m)
     return create_simulation(
         config.cell,
         config.object,
         config.error_model,
         design,
-        camera_tool.nominal_X_FC(design.baseline_m),
+        X_FC,
         meshcat=meshcat,
         hanging=hanging,
         X_WO=X_WO,
+        rgbd=rgbd,
     )
 
 
@@ -147,14 +187,14 @@ def setup_world(
     """The simulated cell (or the configured driver's hardware) and a planner on the software's
     view of the cell, after checking that the stereo camera can measure at the standoff and
     that the cell can re-hang the object when the scan may ask for it."""
-    stereo, X_FC = software_camera(config)
-    check_stereo_reach(config, stereo)
+    model, X_FC = software_camera(config)
+    check_reach(config, model)
     sim = hardware = None
     if config.driver or config.hardware is not None:
         if config.driver:
             hardware = load_hardware(config.driver, config)
         else:
-            hardware, sim = connect_cell(config, stereo, meshcat, hanging, X_WO)
+            hardware, sim = connect_cell(config, model, meshcat, hanging, X_WO)
         if config.auto_hangings and hardware.request_rehang is None and sim is None:
             raise ScannerError(
                 "hangings: 'auto' needs a driver that can ask for a re-hang "
@@ -164,21 +204,21 @@ def setup_world(
     else:
         sim = simulated_cell(config, meshcat, hanging, X_WO)
     planner_cell = build_workcell(
-        config.cell, None, X_FC, stereo.X_CR, meshcat=meshcat if hardware else None
+        config.cell, None, X_FC, model.X_CR, meshcat=meshcat if hardware else None
     )
     # Scans always cache the roadmap (a second scan of the same cell starts at once).
     roadmaps = config.planner.cache_dir or str(cache_dir() / "roadmaps")
-    planner = Planner(planner_cell, X_FC, stereo.X_CR, replace(config.planner, cache_dir=roadmaps))
+    planner = Planner(planner_cell, X_FC, model.X_CR, replace(config.planner, cache_dir=roadmaps))
     if hardware:
         shown = sim.workcell if sim is not None else planner_cell
         return ScanWorld(
-            hardware.robot, hardware.camera, planner, stereo, X_FC, sim, shown, hardware
+            hardware.robot, hardware.camera, planner, model, X_FC, sim, shown, hardware
         )
-    return ScanWorld(sim.robot, sim.camera, planner, stereo, X_FC, sim, sim.workcell)
+    return ScanWorld(sim.robot, sim.camera, planner, model, X_FC, sim, sim.workcell)
 
 
 def connect_cell(
-    config: ScanConfig, stereo: StereoCamera, meshcat, hanging: int, X_WO: np.ndarray | None
+    config: ScanConfig, model: CameraModel, meshcat, hanging: int, X_WO: np.ndarray | None
 ) -> tuple[Hardware, Simulation | None]:
     """The `hardware:` section's robot link and camera (and, for the simulated camera, the
     simulated cell it renders: its truth then judges the result)."""
@@ -187,7 +227,12 @@ def connect_cell(
         if config.hardware.camera.kind == "simulated":
             sim = simulated_cell(config, meshcat, hanging, X_WO)
             return Hardware(robot, camera_at_reported_joints(sim, robot)), sim
-        camera = open_camera(config.hardware.camera, stereo.image_size)
+        if config.sensor != "stereo":
+            raise ScannerError(
+                f"hardware.camera.kind: '{config.hardware.camera.kind}' is a stereo camera; "
+                f"the configuration's sensor is {config.sensor}"
+            )
+        camera = open_camera(config.hardware.camera, model.image_size)
     except BaseException:
         close_all(robot)
         raise
@@ -215,18 +260,27 @@ class WatchedRobot(RobotDriver):
         self._robot.execute(trajectory)
 
 
-def live_cloud(live, config: ScanConfig, stereo: StereoCamera, X_FC: np.ndarray):
-    """The PROCESS state with --meshcat: each capture's stereo cloud (every 4th pixel) joins the
+def live_cloud(live, config: ScanConfig, model: CameraModel, X_FC: np.ndarray):
+    """The PROCESS state with --meshcat: each capture's cloud (every 4th pixel) joins the
     growing cloud in Meshcat, placed by the kinematic pose and the nominal X_FC."""
-    rect = compute_rectification(stereo)
-    params = replace(config.processing.stereo, subsample_step_px=4)
     centre = np.array(config.scan_center_m)
     radius = keep_out_radius_m(config.cell)
+    if isinstance(model, RgbdCamera):
+
+        def cloud_of(capture, X_WC):
+            c = view_rgbd_cloud(model, capture.depth, capture.left, X_WC, centre, radius, 4)
+            return c.points_C, c.colors
+    else:
+        rect = compute_rectification(model)
+        params = replace(config.processing.stereo, subsample_step_px=4)
+
+        def cloud_of(capture, X_WC):
+            c = view_cloud(rect, capture.left, capture.right, X_WC, centre, radius, params)
+            return c.points_C, c.colors
 
     def process(capture) -> None:
         X_WC = capture.X_WF @ X_FC
-        cloud = view_cloud(rect, capture.left, capture.right, X_WC, centre, radius, params)
-        p_W = transform_points(X_WC, cloud.points_C)
-        live.add_cloud(f"{capture.pose_index:04d}", p_W, cloud.colors)
+        points_C, colors = cloud_of(capture, X_WC)
+        live.add_cloud(f"{capture.pose_index:04d}", transform_points(X_WC, points_C), colors)
 
     return process

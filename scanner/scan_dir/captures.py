@@ -39,7 +39,9 @@ STATUS_RANK = {"running": 0, "interrupted": 0, "captured": 1, "complete": 2}
 
 @dataclass(frozen=True, eq=False)
 class Capture:
-    """One stereo capture and the robot state it was taken at (what `reconstruct` reads)."""
+    """One capture and the robot state it was taken at (what `reconstruct` reads): a stereo
+    pair (left, right), or an RGB-D capture (left: the colour image, right None, depth: uint16
+    counts of depth_scale_m metres on the depth camera's grid)."""
 
     pose_index: int
     pose_count: int
@@ -47,11 +49,37 @@ class Capture:
     X_WF: np.ndarray
     stamp_s: float
     left: np.ndarray
-    right: np.ndarray
+    right: np.ndarray | None
+    depth: np.ndarray | None = None
+    depth_scale_m: float = 0.0
 
     def __post_init__(self) -> None:
-        for a in (self.q_rad, self.X_WF, self.left, self.right):
-            a.setflags(write=False)
+        for a in (self.q_rad, self.X_WF, self.left, self.right, self.depth):
+            if a is not None:
+                a.setflags(write=False)
+
+    @property
+    def sensor(self) -> str:
+        return "stereo" if self.depth is None else "rgbd"
+
+    @staticmethod
+    def of(pose_index: int, pose_count: int, q_rad, X_WF, images) -> Capture:
+        """The capture of what a camera driver delivered (StereoImages or RgbdImages)."""
+        if hasattr(images, "depth"):
+            return Capture(
+                pose_index,
+                pose_count,
+                q_rad,
+                X_WF,
+                images.stamp_s,
+                images.color,
+                None,
+                images.depth,
+                float(images.depth_scale_m),
+            )
+        return Capture(
+            pose_index, pose_count, q_rad, X_WF, images.stamp_s, images.left, images.right
+        )
 
 
 def write_bytes(path: Path, data: bytes) -> None:
@@ -193,8 +221,14 @@ class CaptureStore:
 
     @staticmethod
     def _write_capture_files(tmp: Path, capture: Capture) -> None:
-        for name, rgb in (("left.png", capture.left), ("right.png", capture.right)):
-            ok, png = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        if capture.sensor == "rgbd":
+            files = {"color": ("color.png", capture.left), "depth": ("depth.png", capture.depth)}
+        else:
+            files = {"left": ("left.png", capture.left), "right": ("right.png", capture.right)}
+        for name, image in files.values():
+            # PNG is lossless for 8-bit colour and for 16-bit depth counts alike.
+            data = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+            ok, png = cv2.imencode(".png", data)
             if not ok:
                 raise ScannerError(f"capture {capture.pose_index}: image could not be encoded")
             write_bytes(tmp / name, png.tobytes())
@@ -205,10 +239,13 @@ class CaptureStore:
             "q_rad": [float(v) for v in capture.q_rad],
             "X_WF": capture.X_WF.tolist(),
             "stamp_s": float(capture.stamp_s),
-            "left": "left.png",
-            "right": "right.png",
+            "sensor": capture.sensor,
+            **{key: name for key, (name, _) in files.items()},
             "image_size": [int(capture.left.shape[1]), int(capture.left.shape[0])],
         }
+        if capture.sensor == "rgbd":
+            meta["depth_size"] = [int(capture.depth.shape[1]), int(capture.depth.shape[0])]
+            meta["depth_scale_m"] = float(capture.depth_scale_m)
         atomic_write_yaml(tmp / "capture.yaml", meta)
 
     def read_capture(self, index: int) -> Capture:
@@ -229,18 +266,58 @@ class CaptureStore:
             raise ScannerError(f"{d / 'capture.yaml'}: q_rad must be 6 finite numbers")
         if X_WF.shape != (4, 4) or not np.all(np.isfinite(X_WF)):
             raise ScannerError(f"{d / 'capture.yaml'}: X_WF must be a finite 4x4 matrix")
-        images = []
-        for name in ("left", "right"):
-            path = d / str(meta.get(name, f"{name}.png"))
-            bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-            if bgr is None:
-                raise ScannerError(f"{path}: missing or unreadable image")
-            if bgr.shape[:2] != (height, width):
-                raise ScannerError(
-                    f"{path}: image is {bgr.shape[1]}x{bgr.shape[0]}, expected {width}x{height}"
-                )
-            images.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+        sensor = meta.get("sensor", "stereo")
+        if sensor == "rgbd":
+            color = _read_rgb(d / str(meta.get("color", "color.png")), width, height)
+            depth, scale = read_depth(d, meta)
+            return Capture(index, count, q, X_WF, stamp, color, None, depth, scale)
+        if sensor != "stereo":
+            raise ScannerError(
+                f"{d / 'capture.yaml'}: sensor: expected 'stereo' or 'rgbd', got {sensor!r}"
+            )
+        images = [
+            _read_rgb(d / str(meta.get(name, f"{name}.png")), width, height)
+            for name in ("left", "right")
+        ]
         return Capture(index, count, q, X_WF, stamp, images[0], images[1])
+
+
+def _read_rgb(path: Path, width: int, height: int) -> np.ndarray:
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise ScannerError(f"{path}: missing or unreadable image")
+    if bgr.shape[:2] != (height, width):
+        raise ScannerError(
+            f"{path}: image is {bgr.shape[1]}x{bgr.shape[0]}, expected {width}x{height}"
+        )
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def read_depth(folder: Path, meta: dict) -> tuple[np.ndarray, float]:
+    """An RGB-D capture's depth counts and their unit, checked against its capture.yaml."""
+    where = folder / "capture.yaml"
+    scale = meta.get("depth_scale_m")
+    if isinstance(scale, bool) or not isinstance(scale, int | float):
+        raise ScannerError(
+            f"{where}: depth_scale_m: expected the depth unit in metres, got {scale!r}"
+        )
+    if not (np.isfinite(scale) and scale > 0):
+        raise ScannerError(f"{where}: depth_scale_m: expected a positive number, got {scale}")
+    size = meta.get("depth_size")
+    if not (isinstance(size, list) and len(size) == 2 and all(isinstance(n, int) for n in size)):
+        raise ScannerError(f"{where}: depth_size: expected [width, height], got {size!r}")
+    path = folder / str(meta.get("depth", "depth.png"))
+    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if depth is None:
+        raise ScannerError(f"{path}: missing or unreadable depth image")
+    if depth.dtype != np.uint16 or depth.ndim != 2:
+        raise ScannerError(f"{path}: expected a 16-bit single-channel depth image")
+    if depth.shape != (size[1], size[0]):
+        raise ScannerError(
+            f"{path}: depth image is {depth.shape[1]}x{depth.shape[0]}, expected "
+            f"{size[0]}x{size[1]}"
+        )
+    return depth, float(scale)
 
 
 def require_same_settings(where: Path, what: str, saved: dict, wanted: dict) -> None:

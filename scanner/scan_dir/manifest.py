@@ -16,10 +16,10 @@ import numpy as np
 from planners.ik import Viewpoint
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import check_pose
-from reconstruction.stereo.camera_model import (
-    StereoCamera,
-    stereo_camera_from_dict,
-    stereo_camera_to_dict,
+from reconstruction.depth.camera_model import (
+    CameraModel,
+    camera_model_from_dict,
+    camera_model_to_dict,
 )
 from robots.models.rx60 import RX60, rx60_urdf
 from scanner.configs.scan import ScanConfig, scan_config_from_dict, scan_config_to_dict
@@ -63,7 +63,7 @@ def views_from_manifest(items: list[dict], where: str) -> list[PlannedView]:
 
 def new_manifest(
     config: ScanConfig,
-    stereo: StereoCamera,
+    camera_model: CameraModel,
     X_FC: np.ndarray,
     views: list[PlannedView],
     plan_info: dict,
@@ -73,7 +73,7 @@ def new_manifest(
     return {
         "object": config.object,
         "config": scan_config_to_dict(config),
-        "camera": stereo_camera_to_dict(stereo),
+        "camera": camera_model_to_dict(camera_model),
         "X_FC_nominal": X_FC.tolist(),
         "robot": {
             "model": "staubli_rx60",
@@ -93,7 +93,7 @@ class SavedScan:
     store: CaptureStore
     manifest: dict
     config: ScanConfig
-    stereo: StereoCamera
+    camera_model: CameraModel  # the stereo pair's or the RGB-D device's
     X_FC_nominal: np.ndarray
     views: tuple[PlannedView, ...]
     hangings: tuple[tuple[int, ...], ...]  # the view indices of each pass
@@ -140,7 +140,7 @@ def open_scan(scan_dir: Path) -> SavedScan:
         store,
         manifest,
         scan_config_from_dict(manifest["config"], f"{where}:config"),
-        stereo_camera_from_dict(manifest["camera"], f"{where}:camera"),
+        camera_model_from_dict(manifest["camera"], f"{where}:camera"),
         check_pose(manifest["X_FC_nominal"], f"{where}:X_FC_nominal"),
         tuple(views),
         hangings,
