@@ -9,6 +9,7 @@ from scanner.commands.arguments import (
     add_command,
     add_config_file_argument,
     add_driver_argument,
+    name_arg,
     path_arg,
     positive_float,
 )
@@ -71,6 +72,9 @@ def run_check_cell_command(args: argparse.Namespace) -> int:
 
     config = load_scan_config(args.config)
     if args.calibration is not None:
+        from reconstruction.calibration.file import load_calibration
+
+        load_calibration(args.calibration)  # a bad file is named before anything connects
         config = replace(config, calibration_file=str(args.calibration))
     if args.driver:
         config = replace(config, driver=args.driver, hardware=None)
@@ -106,6 +110,7 @@ def add_emulate_parser(sub) -> None:
     )
     emulate.add_argument(
         "--host",
+        type=name_arg,
         default=defaults.host,
         help="address to listen on (default %(default)s; 0.0.0.0: every interface)",
     )
