@@ -3,7 +3,7 @@ it renders the caller's own simulated cell)."""
 
 from __future__ import annotations
 
-from robots.drivers.interfaces import RobotDriver, StereoCameraDriver
+from robots.drivers.interfaces import DepthCameraDriver, RobotDriver, StereoCameraDriver
 from robots.drivers.settings import CameraLinkConfig, RobotLinkConfig
 
 
@@ -26,6 +26,13 @@ def open_camera(settings: CameraLinkConfig, image_size: tuple[int, int]) -> Ster
         camera.close()
         raise
     return camera
+
+
+def open_depth_camera(settings: CameraLinkConfig) -> DepthCameraDriver:
+    """The RGB-D camera, started (one-line ScannerError when absent, busy or unable)."""
+    from robots.drivers.realsense import RealSenseCamera
+
+    return RealSenseCamera(settings.serial, settings.width_px, settings.height_px, settings.fps)
 
 
 def close_all(*parts: object) -> None:

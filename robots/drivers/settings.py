@@ -19,7 +19,7 @@ from reconstruction.common.errors import ScannerError
 ROBOT_KINDS = ("staubli_val3",)
 # "simulated": the scan's own simulated cell rendered at the joints the robot link reports
 # (with the controller emulator: a whole scan over the wire without a camera).
-CAMERA_KINDS = ("opencv", "simulated")
+CAMERA_KINDS = ("opencv", "realsense", "simulated")
 
 
 @dataclass(frozen=True)
@@ -52,7 +52,10 @@ class CameraLinkConfig:
     a device path, a URL or an image-sequence pattern such as `rec/left_%04d.png`), or one
     source delivering side-by-side frames (`side_by_side: true`, `right` unset); both are
     grabbed before either is retrieved, and grabs further apart than max_skew_s are refused.
-    simulated: the scan's simulated cell, rendered at the joints the robot link reports."""
+    realsense: an Intel RealSense depth camera (sensor: rgbd) through its SDK, depth and colour
+    at width_px x height_px and fps, depth aligned to colour by the SDK; `serial` picks one of
+    several. simulated: the scan's simulated cell, rendered at the joints the robot link
+    reports."""
 
     kind: str = "opencv"
     left: int | str = 0
@@ -61,6 +64,10 @@ class CameraLinkConfig:
     max_skew_s: float = positive(0.01)
     # Grabs that fail in a row before the capture is reported failed (the scan then retries).
     grab_attempts: int = integer(3)
+    serial: str | None = None
+    width_px: int = integer(848, minimum=16)
+    height_px: int = integer(480, minimum=16)
+    fps: int = integer(30)
 
     def __post_init__(self) -> None:
         require_choice("hardware.camera", "kind", self.kind, CAMERA_KINDS)

@@ -27,6 +27,7 @@ import numpy as np
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.stage_timer import StageTimer
 from reconstruction.common.yaml_files import yaml_text
+from reconstruction.depth.camera_model import sensor_words
 from reconstruction.outputs import export_files, save_outputs, summary
 from reconstruction.pipeline import ReconstructionResult, reconstruct_views
 from reconstruction.stereo.camera_model import StereoCamera
@@ -247,6 +248,7 @@ def _reconstruct(
         truth_samples = sampling.result() if sampling is not None else None
 
     report: dict = {
+        "sensor": sensor_words(stereo or first.camera_model),
         "captures_used": len(views.views),
         "captures_skipped": views.skipped,
         "settings": _settings(processing, first, origin or {}),

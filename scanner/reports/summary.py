@@ -98,6 +98,8 @@ def _run_lines(report: dict) -> list[str]:
             f"{len(report.get('captures_skipped', []))} skipped, "
             f"{_fmt(report['reconstruct_s'], 1)} s"
         )
+    if "sensor" in report:
+        lines.append(f"- sensor: {report['sensor']}")
     s = report.get("settings")
     if s:
         lines.append(

@@ -19,7 +19,7 @@ from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.stereo.cloud import view_cloud
 from reconstruction.stereo.params import disparity_window, object_depth_window
 from reconstruction.stereo.rectification import compute_rectification
-from robots.drivers.connect import close_all, connect_robot, open_camera
+from robots.drivers.connect import close_all, connect_robot, open_camera, open_depth_camera
 from robots.drivers.interfaces import (
     DepthCameraDriver,
     Hardware,
@@ -210,11 +210,31 @@ def setup_world(
     roadmaps = config.planner.cache_dir or str(cache_dir() / "roadmaps")
     planner = Planner(planner_cell, X_FC, model.X_CR, replace(config.planner, cache_dir=roadmaps))
     if hardware:
+        device_model = getattr(hardware.camera, "rgbd_camera", None)
+        if device_model is not None:
+            calibrated = model if config.calibration_file else None
+            model = device_model_as_calibrated(device_model(), calibrated)
         shown = sim.workcell if sim is not None else planner_cell
         return ScanWorld(
             hardware.robot, hardware.camera, planner, model, X_FC, sim, shown, hardware
         )
     return ScanWorld(sim.robot, sim.camera, planner, model, X_FC, sim, sim.workcell)
+
+
+def device_model_as_calibrated(device: RgbdCamera, calibrated: RgbdCamera | None) -> RgbdCamera:
+    """A real depth camera's model is what the device reports (its intrinsics, depth unit,
+    depth aligned to colour); a calibration adds its depth correction and its colour
+    intrinsics (the aligned depth lies on the colour grid)."""
+    if calibrated is None:
+        return device
+    model = replace(device, depth_correction=calibrated.depth_correction)
+    if calibrated.image_size != device.image_size:
+        raise ScannerError(
+            f"calibration_file: calibrated for {calibrated.image_size[0]}x"
+            f"{calibrated.image_size[1]} colour images, the camera delivers "
+            f"{device.image_size[0]}x{device.image_size[1]}"
+        )
+    return replace(model, color=calibrated.color, depth=calibrated.color)
 
 
 def connect_cell(
@@ -227,12 +247,17 @@ def connect_cell(
         if config.hardware.camera.kind == "simulated":
             sim = simulated_cell(config, meshcat, hanging, X_WO)
             return Hardware(robot, camera_at_reported_joints(sim, robot)), sim
-        if config.sensor != "stereo":
+        kind = config.hardware.camera.kind
+        wanted = "rgbd" if kind == "realsense" else "stereo"
+        if config.sensor != wanted:
             raise ScannerError(
-                f"hardware.camera.kind: '{config.hardware.camera.kind}' is a stereo camera; "
-                f"the configuration's sensor is {config.sensor}"
+                f"hardware.camera.kind: '{kind}' is a {wanted} camera; the configuration's "
+                f"sensor is {config.sensor}"
             )
-        camera = open_camera(config.hardware.camera, model.image_size)
+        if kind == "realsense":
+            camera = open_depth_camera(config.hardware.camera)
+        else:
+            camera = open_camera(config.hardware.camera, model.image_size)
     except BaseException:
         close_all(robot)
         raise
