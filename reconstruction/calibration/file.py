@@ -62,8 +62,14 @@ class Calibration:
     X_WB: np.ndarray | None = None
     board: dict = field(default_factory=dict)
     quality: dict = field(default_factory=dict)
+    # An RGB-D device's depth-scale correction (true depth = reported x this), found with the
+    # board; None for a stereo rig or when not measured.
+    depth_correction: float | None = None
 
     def __post_init__(self) -> None:
+        c = self.depth_correction
+        if c is not None and not (isinstance(c, int | float) and 0.5 < c < 2.0):
+            raise ScannerError(f"depth_correction: expected a factor near 1, got {c!r}")
         X = np.array(self.X_FC, float)
         if X.shape != (4, 4) or not np.all(np.isfinite(X)):
             raise ScannerError("X_FC: expected a finite 4x4 matrix")
@@ -117,6 +123,7 @@ def calibration_to_dict(calibration: Calibration) -> dict:
         "X_WB": None if calibration.X_WB is None else calibration.X_WB.tolist(),
         "board": _plain(calibration.board),
         "quality": _plain(calibration.quality),
+        "depth_correction": calibration.depth_correction,
     }
 
 
@@ -166,6 +173,7 @@ def calibration_from_dict(d: dict, where: str = "calibration") -> Calibration:
             None if d.get("X_WB") is None else np.array(d["X_WB"], float),
             dict(d.get("board") or {}),
             dict(d.get("quality") or {}),
+            d.get("depth_correction"),
         )
     except (TypeError, ValueError) as e:
         raise ScannerError(f"{where}: malformed matrix ({e})") from None

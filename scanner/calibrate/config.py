@@ -12,6 +12,7 @@ from reconstruction.calibration.eye_to_hand import MarkerDetectionSettings
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.checks import check_fields, integer, positive
 from reconstruction.common.errors import ScannerError
+from reconstruction.depth.camera_model import DepthDesign
 from reconstruction.stereo.camera_model import StereoDesign
 from robots.drivers.settings import HardwareConfig
 from robots.models.calibration_board import BoardPlacement
@@ -81,8 +82,14 @@ class CalibrateConfig:
     # Or a real cell from configuration (robot link, camera), as in a scan configuration; the
     # camera kind "simulated" renders the simulated board cell at the joints the link reports.
     hardware: HardwareConfig | None = None
+    # What the tool carries: "stereo" (camera:) or "rgbd" (rgbd:, a depth camera whose colour
+    # images find the board; its depth then gives a depth-scale correction).
+    sensor: str = "stereo"
+    rgbd: DepthDesign = field(default_factory=DepthDesign)
 
     def __post_init__(self) -> None:
+        if self.sensor not in ("stereo", "rgbd"):
+            raise ScannerError(f"sensor: expected 'stereo' or 'rgbd', got {self.sensor!r}")
         if self.driver and self.hardware is not None:
             raise ScannerError(
                 "hardware: a calibration runs on --driver MODULE:FACTORY or on a hardware: "

@@ -14,12 +14,15 @@ import numpy as np
 
 from planners.planner import PlanFailure, Planner
 from reconstruction.common.errors import ScannerError
-from reconstruction.stereo.camera_model import (
-    StereoCamera,
-    stereo_camera_to_dict,
-)
+from reconstruction.depth.camera_model import CameraModel, camera_model_to_dict
 from robots.drivers.connect import close_all, connect_robot, open_camera
-from robots.drivers.interfaces import Hardware, RobotDriver, StereoCameraDriver, load_hardware
+from robots.drivers.interfaces import (
+    DepthCameraDriver,
+    Hardware,
+    RobotDriver,
+    StereoCameraDriver,
+    load_hardware,
+)
 from robots.models import camera_tool
 from robots.models.calibration_board import (
     BoardFixture,
@@ -58,8 +61,8 @@ class CalibrationWorld:
 
     sim: Simulation | None  # None on hardware
     robot: RobotDriver
-    camera: StereoCameraDriver
-    stereo: StereoCamera  # nominal
+    camera: StereoCameraDriver | DepthCameraDriver
+    stereo: CameraModel  # nominal: the stereo pair's, or the RGB-D device's
     X_FC: np.ndarray  # nominal
     X_WB: np.ndarray  # the configured board pose (in simulation also the true one)
     kinematics: Kinematics
@@ -69,11 +72,17 @@ class CalibrationWorld:
         return self.planner.is_collision_free(q)
 
 
+def build_model(config: CalibrateConfig) -> CameraModel:
+    """The nominal camera model of the calibration's sensor."""
+    return config.rgbd.rgbd_camera() if config.sensor == "rgbd" else config.camera.stereo_camera()
+
+
 def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> CalibrationWorld:
     """The true simulated cell (board on its stand unless with_board is False, no object), or
     the hardware of `config.driver`, and a collision checker on the software's view of the cell."""
-    stereo = config.camera.stereo_camera()
-    X_FC = camera_tool.nominal_X_FC(stereo.baseline_m)
+    rgbd = config.rgbd.rgbd_camera() if config.sensor == "rgbd" else None
+    stereo = rgbd or config.camera.stereo_camera()
+    X_FC = camera_tool.rig_X_FC(stereo.X_CR)
     fixtures = ()
     if with_board:
         directory = cache_dir() / "boards" / board_fingerprint(config.board)
@@ -87,7 +96,13 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
         hardware, sim = _configured_cell(config, stereo, X_FC, (*fixtures, *extras))
     else:
         sim = create_simulation(
-            config.cell, None, config.error_model, stereo, X_FC, extras=(*fixtures, *extras)
+            config.cell,
+            None,
+            config.error_model,
+            config.camera.stereo_camera(),
+            X_FC,
+            extras=(*fixtures, *extras),
+            rgbd=rgbd,
         )
         hardware = Hardware(sim.robot, sim.camera)
     planner_cell = build_workcell(
@@ -114,8 +129,15 @@ def _configured_cell(config: CalibrateConfig, stereo, X_FC, extras):
     robot = connect_robot(config.hardware.robot)
     try:
         if config.hardware.camera.kind == "simulated":
+            rgbd = stereo if config.sensor == "rgbd" else None
             sim = create_simulation(
-                config.cell, None, config.error_model, stereo, X_FC, extras=extras
+                config.cell,
+                None,
+                config.error_model,
+                config.camera.stereo_camera(),
+                X_FC,
+                extras=extras,
+                rgbd=rgbd,
             )
             return Hardware(robot, camera_at_reported_joints(sim, robot)), sim
         return Hardware(robot, open_camera(config.hardware.camera, stereo.image_size)), None
@@ -155,7 +177,7 @@ def _check_resume_matches(manifest: dict, config: CalibrateConfig, where: Path) 
     wanted = {
         "board": to_dict(config.board),
         "placement": to_dict(config.placement),
-        "camera": stereo_camera_to_dict(config.camera.stereo_camera()),
+        "camera": camera_model_to_dict(build_model(config)),
         "driver": config.driver,
     }
     require_same_settings(where, "calibration", {k: manifest.get(k) for k in wanted}, wanted)
@@ -211,17 +233,7 @@ def run_eye_in_hand(
             continue
         pair = world.camera.capture()
         q = world.robot.joint_positions()
-        store.write_capture(
-            Capture(
-                index,
-                len(stations),
-                q,
-                world.kinematics.X_WF(q),
-                pair.stamp_s,
-                pair.left,
-                pair.right,
-            )
-        )
+        store.write_capture(Capture.of(index, len(stations), q, world.kinematics.X_WF(q), pair))
         if progress:
             progress(len(store.captured_indices()), len(stations))
     capture_s = time.perf_counter() - t_capture
@@ -262,7 +274,7 @@ def _start_run(
         "kind": "calibration",
         "board": to_dict(config.board),
         "placement": to_dict(config.placement),
-        "camera": stereo_camera_to_dict(world.stereo),
+        "camera": camera_model_to_dict(world.stereo),
         "X_FC_nominal": world.X_FC.tolist(),
         "pose_count": len(plan.stations),
         "stations": [

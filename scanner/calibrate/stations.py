@@ -97,7 +97,12 @@ def board_in_view(
 ) -> bool:
     """The whole board inside both images (nominal model), at least margin_px from the edges."""
     p_B = _board_outline_B(board)
-    for camera, X_WS in ((stereo.left, X_WC), (stereo.right, X_WC @ stereo.X_CR)):
+    # Both cameras of the rig: the stereo pair, or an RGB-D device's colour camera (the board's
+    # corners) and depth camera (the board's plane for the depth-scale check).
+    first, second = (
+        (stereo.color, stereo.depth) if hasattr(stereo, "depth") else (stereo.left, stereo.right)
+    )
+    for camera, X_WS in ((first, X_WC), (second, X_WC @ stereo.X_CR)):
         p_S = transform_points(invert(X_WS) @ X_WB, p_B)
         if np.any(p_S[:, 2] <= 0.05):
             return False

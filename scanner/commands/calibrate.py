@@ -110,6 +110,8 @@ def _config(args: argparse.Namespace) -> CalibrateConfig:
     if args.stations is not None:
         stations = for_flag("--stations", lambda: replace(config.stations, count=args.stations))
         config = replace(config, stations=stations)
+    if args.sensor is not None:
+        config = for_flag("--sensor", lambda: replace(config, sensor=args.sensor))
     if args.driver is not None:
         if args.offline is not None:
             raise ScannerError("--offline calibrates recorded data; do not give --driver")

@@ -74,6 +74,15 @@ def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
         help="number of board views to take (default %(config_default)s)",
         config=ConfigDefault(CALIBRATE_CONFIG, "stations.count"),
     )
+    add_config_option(
+        calibrate,
+        "--sensor",
+        type=name_arg,
+        help="what the tool carries: stereo (the pair) or rgbd (a depth camera: its colour "
+        "images find the board, its depth gives a depth-scale correction) "
+        "(default %(config_default)s)",
+        config=ConfigDefault(CALIBRATE_CONFIG, "sensor"),
+    )
     add_driver_argument(
         calibrate, "eye-in-hand", "; the board stands where the configuration's placement says"
     )

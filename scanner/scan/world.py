@@ -106,7 +106,8 @@ def software_camera(config: ScanConfig) -> tuple[CameraModel, np.ndarray]:
                 f"{config.calibration_file}: calibrated for {color.width}x{color.height} "
                 f"images, the colour camera delivers {model.image_size[0]}x{model.image_size[1]}"
             )
-        return replace(model, color=color), calibration.X_FC
+        correction = calibration.depth_correction or 1.0
+        return replace(model, color=color, depth_correction=correction), calibration.X_FC
     if calibration.stereo is None:
         raise ScannerError(f"{config.calibration_file}: holds no stereo camera model")
     if calibration.stereo.image_size != model.image_size:
