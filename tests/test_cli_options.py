@@ -152,6 +152,7 @@ CASES = [
     (["monitor"], "--intruder", st.sampled_from(["", "x", "-1", "nan", "1;2"])),
     (["monitor", "--duration", "5"], "--intruder", st.just("6")),
     (["scan"], "--sensor", _names(["stereo", "rgbd"])),
+    (["calibrate"], "--sensor", _names(["stereo", "rgbd"])),
     (["check-cell"], "--config", _paths(PATHS)),
     (["check-cell"], "--calibration", _paths(PATHS)),
     (["check-cell"], "--driver", _names([])),
