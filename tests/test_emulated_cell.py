@@ -284,3 +284,22 @@ def test_calibrate_over_the_wire(tmp_path):
     # measured: 0.11 mm / 0.012 deg (the simulated calibration of 8 stations is as good)
     assert report["truth"]["handeye_error_mm"] < 0.5
     assert report["truth"]["handeye_error_deg"] < 0.05
+
+
+@pytest.mark.parametrize(
+    "sensor, expected",
+    [
+        ("stereo", "hardware.camera.kind: 'realsense' is an RGB-D camera (sensor: rgbd)"),
+        ("rgbd", "hardware.camera: no RealSense device found"),
+    ],
+)
+def test_a_realsense_that_is_not_there_or_not_the_sensor_is_one_line(tmp_path, sensor, expected):
+    with Val3Emulator(emulator_settings(), HOME_Q).start() as em:
+        path = hardware_config(tmp_path, em, sensor=sensor)
+        config = yaml.safe_load(path.read_text())
+        config["hardware"]["camera"] = {"kind": "realsense"}
+        path.write_text(yaml.safe_dump(config))
+        r = scanner("scan", "--config", path, "--out", tmp_path / "s")
+        assert r.returncode == 2, r.stderr
+        assert expected in r.stderr and len(r.stderr.strip().splitlines()) == 1
+        assert em.received == [] and not (tmp_path / "s").exists()

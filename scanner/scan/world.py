@@ -251,9 +251,10 @@ def connect_cell(
         kind = config.hardware.camera.kind
         wanted = "rgbd" if kind == "realsense" else "stereo"
         if config.sensor != wanted:
+            what = "an RGB-D camera (sensor: rgbd)" if wanted == "rgbd" else "a stereo camera"
             raise ScannerError(
-                f"hardware.camera.kind: '{kind}' is a {wanted} camera; the configuration's "
-                f"sensor is {config.sensor}"
+                f"hardware.camera.kind: '{kind}' is {what}; the configuration's sensor is "
+                f"{config.sensor}"
             )
         if kind == "realsense":
             camera = open_depth_camera(config.hardware.camera)
