@@ -84,3 +84,11 @@ def test_a_scan_with_the_calibration_undoes_the_depth_scale_error(calibration, t
     # A 1 % scale at 0.5 m is 5 mm of depth: the views no longer agree and the model is off.
     assert fused["uncorrected"] > 1.5 * fused["exact"], fused
     assert fused["corrected"] < 1.2 * fused["exact"], fused
+    # Offline: the uncorrected captures reconstructed with the calibration are corrected too.
+    out = tmp_path / "offline"
+    r = scanner(
+        "reconstruct", tmp_path / "uncorrected", "--calibration", calibration[0], "--out", out
+    )
+    assert r.returncode == 0, r.stderr
+    offline = json.loads((out / "report.json").read_text())
+    assert offline["surfaces"]["fused_cloud"]["chamfer_observed_mm"] < 1.2 * fused["exact"]

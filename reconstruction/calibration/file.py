@@ -184,3 +184,31 @@ def calibration_from_dict(d: dict, where: str = "calibration") -> Calibration:
 def load_calibration(path: Path) -> Calibration:
     """The calibration in `path` (what `--calibration FILE` reads), validated."""
     return calibration_from_dict(read_yaml(path, "calibration"), str(path))
+
+
+def calibrated_model(model, calibration: Calibration, where: str):
+    """The camera model a calibration makes of the nominal `model` (a StereoCamera or an
+    RgbdCamera): the calibrated pair; or, for an RGB-D device (which keeps its own depth
+    camera and extrinsics), the calibrated colour camera and depth-scale correction. Images of
+    another size than the calibration's are refused, naming `where`."""
+    from dataclasses import replace
+
+    from reconstruction.depth.camera_model import RgbdCamera
+
+    if isinstance(model, RgbdCamera):
+        color = calibration.camera
+        if (color.width, color.height) != model.image_size:
+            raise ScannerError(
+                f"{where}: calibrated for {color.width}x{color.height} images, the colour "
+                f"camera delivers {model.image_size[0]}x{model.image_size[1]}"
+            )
+        correction = calibration.depth_correction or 1.0
+        return replace(model, color=color, depth_correction=correction)
+    if calibration.stereo is None:
+        raise ScannerError(f"{where}: holds no stereo camera model")
+    if calibration.stereo.image_size != model.image_size:
+        raise ScannerError(
+            f"{where}: calibrated for {calibration.stereo.image_size} images, the camera "
+            f"delivers {model.image_size}"
+        )
+    return calibration.stereo

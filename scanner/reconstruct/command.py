@@ -29,7 +29,8 @@ class ReconstructOptions:
 def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructRun:
     """The scan's own settings unless --config; results in a free SCAN_DIR/results[-N] unless
     --out (which must not hold a reconstruction, unless --force)."""
-    from reconstruction.calibration.file import load_calibration
+    from reconstruction.calibration.file import calibrated_model, load_calibration
+    from reconstruction.depth.camera_model import RgbdCamera
     from scanner.reconstruct.stages import (
         RECONSTRUCTION_MARKER,
         free_reconstruction_dir,
@@ -61,7 +62,10 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
     stereo = X_FC = None
     if options.calibration is not None:
         calibration = load_calibration(options.calibration)
-        stereo, X_FC = calibration.stereo, calibration.X_FC
+        X_FC = calibration.X_FC
+        stereo = calibration.stereo  # None (a one-camera calibration): the scan's own pair
+        if isinstance(scan.camera_model, RgbdCamera):
+            stereo = calibrated_model(scan.camera_model, calibration, str(options.calibration))
     out = options.out or free_reconstruction_dir(scan_dir)
     if options.out is not None:
         require_replaceable(options.out, RECONSTRUCTION_MARKER, options.force, "reconstruction")

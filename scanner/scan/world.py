@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from planners.planner import Planner
-from reconstruction.calibration.file import load_calibration
+from reconstruction.calibration.file import calibrated_model, load_calibration
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import transform_points
 from reconstruction.depth.camera_model import CameraModel, RgbdCamera
@@ -99,23 +99,7 @@ def software_camera(config: ScanConfig) -> tuple[CameraModel, np.ndarray]:
     if not config.calibration_file:
         return model, X_FC
     calibration = load_calibration(Path(config.calibration_file))
-    if config.sensor == "rgbd":
-        color = calibration.camera
-        if (color.width, color.height) != model.image_size:
-            raise ScannerError(
-                f"{config.calibration_file}: calibrated for {color.width}x{color.height} "
-                f"images, the colour camera delivers {model.image_size[0]}x{model.image_size[1]}"
-            )
-        correction = calibration.depth_correction or 1.0
-        return replace(model, color=color, depth_correction=correction), calibration.X_FC
-    if calibration.stereo is None:
-        raise ScannerError(f"{config.calibration_file}: holds no stereo camera model")
-    if calibration.stereo.image_size != model.image_size:
-        raise ScannerError(
-            f"{config.calibration_file}: calibrated for {calibration.stereo.image_size} "
-            f"images, the camera delivers {model.image_size}"
-        )
-    return calibration.stereo, calibration.X_FC
+    return calibrated_model(model, calibration, config.calibration_file), calibration.X_FC
 
 
 def check_reach(config: ScanConfig, model: CameraModel) -> None:
