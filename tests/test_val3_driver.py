@@ -355,3 +355,29 @@ def test_emulate_controller_serves_until_stopped_and_refuses_a_busy_port():
     finally:
         process.terminate()
         process.wait(timeout=10)
+
+
+def test_an_interrupt_during_a_move_stops_the_arm(emulator, monkeypatch):
+    """Ctrl-C while points are streamed: the driver sends the stop before it lets go."""
+    robot = Val3Robot(link(emulator))
+    try:
+        q0 = robot.joint_positions()
+        goal = q0 + np.array([1.2, -0.6, -0.5, 1.5, 0.6, -1.5])
+        calls = {"n": 0}
+        send = robot._send_point
+
+        def interrupted(q):
+            calls["n"] += 1
+            if calls["n"] == 5:
+                raise KeyboardInterrupt
+            return send(q)
+
+        monkeypatch.setattr(robot, "_send_point", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            robot.execute(straight(q0, goal, 30))
+        assert emulator.received[-1].sequence == sm.STOP_TRAJECTORY
+        held = emulator.joint_positions()
+        time.sleep(0.2)
+        assert np.abs(emulator.joint_positions() - held).max() == 0.0
+    finally:
+        robot.close()

@@ -190,7 +190,9 @@ class Val3Robot(RobotDriver):
         try:
             sent = self._stream(points)
             self._wait_arrival(points, sent)
-        except RobotStoppedError:
+        except BaseException:
+            # A failed link, and anything else that ends the motion early (Ctrl-C included),
+            # stops the arm: queued points must not run on without a watcher.
             self.stop()
             raise
 
