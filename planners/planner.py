@@ -421,13 +421,9 @@ class Planner:
         sampled curve, or waypoints whose joint-linear path was validated as such."""
         if motion != "joint_linear":
             return trajectory.to_joint_trajectory()
-        result = joint_linear_trajectory(
-            trajectory,
-            self.checker,
-            self.robot,
-            self.config.chord_tolerance_rad,
-            self.config.max_joint_step_rad,
-        )
+        c = self.config
+        step, tolerance = c.max_joint_step_rad, c.chord_tolerance_rad
+        result = joint_linear_trajectory(trajectory, self.checker, self.robot, tolerance, step)
         if isinstance(result, ValidationReport):
             return PlanFailure(
                 "validation_failed", f"joint-linear path: {result.failed_check} ({result.detail})"
