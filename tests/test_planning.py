@@ -158,7 +158,8 @@ def test_trajectories_between_look_at_views_pass_the_independent_check(
         assert planner.estimate_duration_s(q_start, q_goal) <= result.duration_s + 1e-9
 
 
-def test_a_blocked_straight_move_is_routed_around(planner, views, independent_checker):
+def _blocked_pair(planner, views):
+    """Two look-at configurations whose straight joint-space move collides, or None."""
     pairs = [
         (qa, qb)
         for i, qs_a in enumerate(views)
@@ -166,7 +167,11 @@ def test_a_blocked_straight_move_is_routed_around(planner, views, independent_ch
         for qa in qs_a[:3]
         for qb in qs_b[:3]
     ]
-    blocked = next(((a, b) for a, b in pairs if straight_line_collides(planner, a, b)), None)
+    return next(((a, b) for a, b in pairs if straight_line_collides(planner, a, b)), None)
+
+
+def test_a_blocked_straight_move_is_routed_around(planner, views, independent_checker):
+    blocked = _blocked_pair(planner, views)
     if blocked is None:
         pytest.skip("every straight move between these views is free")
     result = planner.plan(*blocked)
@@ -343,17 +348,6 @@ def test_a_damaged_cache_file_is_never_used(tmp_path):
 
 
 # --- what a point-to-point controller runs --------------------------------------------------
-
-
-def _blocked_pair(planner, views):
-    pairs = [
-        (qa, qb)
-        for i, qs_a in enumerate(views)
-        for qs_b in views[i + 1 :]
-        for qa in qs_a[:3]
-        for qb in qs_b[:3]
-    ]
-    return next(((a, b) for a, b in pairs if straight_line_collides(planner, a, b)), None)
 
 
 def test_a_joint_linear_controller_gets_waypoints_checked_as_straight_moves(

@@ -12,7 +12,6 @@ camera. Playback runs in real time and does not loop: once its frames are out, c
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,16 +21,16 @@ import pytest
 from reconstruction.common.errors import ScannerError
 from robots.drivers.interfaces import CaptureError
 from robots.drivers.realsense import RealSenseCamera
+from tests import realsense_recording as recording
+from tests.realsense_recording import SOFTWARE_ONLY, Loaded, load
 
 rs = pytest.importorskip("pyrealsense2")
 
-W, H, FPS = 64, 48, 30
+W, H, FPS = 64, 48, recording.FPS
 F_PX, CX, CY = 60.0, 32.0, 24.0
 SERIAL = "SW-0001"
 FRAMES = 12
 DEPTH_UNIT_M = 0.001
-# A context that sees neither USB cameras nor network (DDS) ones: only what a test loads.
-SOFTWARE_ONLY = '{"device-mask": 256, "dds": false}'
 BROWN = (0.1, -0.05, 0.001, -0.002, 0.01)
 
 
@@ -54,18 +53,7 @@ def rgb_pattern() -> np.ndarray:
     return image
 
 
-def intrinsics(model: Any, coeffs: tuple[float, ...]) -> Any:
-    i = rs.intrinsics()
-    i.width, i.height, i.fx, i.fy, i.ppx, i.ppy = W, H, F_PX, F_PX, CX, CY
-    i.model, i.coeffs = model, list(coeffs)
-    return i
-
-
-def video_stream(kind: Any, uid: int, fmt: Any, bpp: int, intr: Any) -> Any:
-    s = rs.video_stream()
-    s.type, s.index, s.uid, s.width, s.height, s.fps = kind, 0, uid, W, H, FPS
-    s.bpp, s.fmt, s.intrinsics = bpp, fmt, intr
-    return s
+K_DEVICE = np.array([[F_PX, 0.0, CX], [0.0, F_PX, CY], [0.0, 0.0, 1.0]])
 
 
 def record(
@@ -75,71 +63,12 @@ def record(
     domain: Any = None,
     t0_ms: float = 0.0,
 ) -> Path:
-    """A software device (depth z16 + colour rgb8, identical intrinsics, identity extrinsics,
-    1 mm depth unit) streaming FRAMES depth/colour pairs at matching time stamps, recorded."""
-    color_model = rs.distortion.none if color_model is None else color_model
-    domain = rs.timestamp_domain.hardware_clock if domain is None else domain
-    device = rs.software_device()
-    device.create_matcher(rs.matchers.default)
-    device.register_info(rs.camera_info.serial_number, SERIAL)
-    device.register_info(rs.camera_info.name, "Software RealSense")
-    depth_sensor = device.add_sensor("Depth")
-    color_sensor = device.add_sensor("Color")
-    none = intrinsics(rs.distortion.none, (0.0,) * 5)
-    depth_profile = depth_sensor.add_video_stream(
-        video_stream(rs.stream.depth, 0, rs.format.z16, 2, none)
-    ).as_video_stream_profile()
-    color_profile = color_sensor.add_video_stream(
-        video_stream(rs.stream.color, 1, rs.format.rgb8, 3, intrinsics(color_model, color_coeffs))
-    ).as_video_stream_profile()
-    depth_sensor.add_read_only_option(rs.option.depth_units, DEPTH_UNIT_M)
-    # A real D400 has a writable emitter; its recording (like this one) plays it read-only.
-    depth_sensor.add_option(rs.option.emitter_enabled, rs.option_range(0, 1, 1, 0), True)
-    identity = rs.extrinsics()
-    identity.rotation, identity.translation = [1, 0, 0, 0, 1, 0, 0, 0, 1], [0, 0, 0]
-    depth_profile.register_extrinsics_to(color_profile, identity)
-
-    path = path.with_suffix(".db3")  # 2.59 records ROS 2 bags and refuses other names
-    recorder = rs.recorder(str(path), device)
-    received: list[int] = []
-    for sensor, profile in ((depth_sensor, depth_profile), (color_sensor, color_profile)):
-        sensor.open(profile)
-        sensor.start(lambda frame: received.append(frame.get_frame_number()))
-    streams = (
-        (depth_sensor, depth_profile, plane_counts(), 2),
-        (color_sensor, color_profile, rgb_pattern(), 3),
+    """The software device (identical intrinsics, identity extrinsics, 1 mm depth unit)
+    streaming FRAMES pairs of the tilted plane and the colour pattern, recorded."""
+    frames = [(plane_counts(), rgb_pattern())] * FRAMES
+    return recording.record(
+        path, frames, K_DEVICE, DEPTH_UNIT_M, SERIAL, color_model, color_coeffs, domain, t0_ms
     )
-    for n in range(FRAMES):
-        for sensor, profile, pixels, bpp in streams:
-            frame = rs.software_video_frame()
-            frame.pixels, frame.stride, frame.bpp = pixels, W * bpp, bpp
-            frame.timestamp, frame.domain, frame.frame_number = t0_ms + n * 1000 / FPS, domain, n
-            frame.profile = profile
-            sensor.on_video_frame(frame)
-        # Playback replays frames at the times they were recorded: paced like a camera, so
-        # the frames that arrive while the pipeline is still starting its sensors are few.
-        time.sleep(1 / FPS)
-    for sensor in (depth_sensor, color_sensor):
-        sensor.stop()
-        sensor.close()
-    recorder.pause()
-    del recorder  # closes the file
-    assert len(received) == 2 * FRAMES
-    return path
-
-
-@dataclass
-class Loaded:
-    """A context holding a recorded device. The context only keeps a weak reference to the
-    device, so the playback object must live as long as the context is used."""
-
-    context: Any
-    playback: Any
-
-
-def load(path: Path) -> Loaded:
-    context = rs.context(SOFTWARE_ONLY)
-    return Loaded(context, context.load_device(str(path)))
 
 
 @pytest.fixture

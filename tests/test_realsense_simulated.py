@@ -3,19 +3,17 @@
 A small RGB-D device whose depth and colour cameras coincide (what a RealSense delivers after
 `rs.align`: depth on the colour grid, X_CD = I) looks at the vase in the simulated cell. Its
 captures (depth counts in 1 mm units, RGB colour) are fed to a software device and recorded
-(see tests/test_realsense.py for why a recording: a pipeline cannot run on a live software
-device in pyrealsense2 2.59); the driver streams the recording with `rs.pipeline`, `rs.align`
-and `wait_for_frames`, and what it delivers must be what the simulator rendered: the same
+(see tests/realsense_recording.py for why a recording: a pipeline cannot run on a live
+software device in pyrealsense2 2.59); the driver streams the recording with `rs.pipeline`,
+`rs.align` and `wait_for_frames`, and what it delivers must be what the simulator rendered: the same
 colour, the same depth (up to the alignment's edges), the same device model, the same cloud.
 """
 
 from __future__ import annotations
 
 import faulthandler
-import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -23,11 +21,11 @@ import pytest
 from reconstruction.depth.camera_model import DepthDesign, RgbdCamera
 from robots.drivers.interfaces import CaptureError, RgbdImages
 from robots.drivers.realsense import RealSenseCamera
-from tests.test_realsense import SOFTWARE_ONLY
+from tests.realsense_recording import FPS, SOFTWARE_ONLY, record
 
 rs = pytest.importorskip("pyrealsense2")
 
-W, H, FPS = 160, 120, 30
+W, H = 160, 120
 SERIAL = "SIM-0001"
 FRAMES = 12
 Z_MIN_M, Z_MAX_M = 0.3, 1.0
@@ -87,75 +85,11 @@ def rendered() -> Rendered:
     return Rendered(model, frames)
 
 
-def intrinsics(K: np.ndarray) -> Any:
-    i = rs.intrinsics()
-    i.width, i.height = W, H
-    i.fx, i.fy, i.ppx, i.ppy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
-    i.model, i.coeffs = rs.distortion.none, [0.0] * 5
-    return i
-
-
-def video_stream(kind: Any, uid: int, fmt: Any, bpp: int, intr: Any) -> Any:
-    s = rs.video_stream()
-    s.type, s.index, s.uid, s.width, s.height, s.fps = kind, 0, uid, W, H, FPS
-    s.bpp, s.fmt, s.intrinsics = bpp, fmt, intr
-    return s
-
-
-def record(path: Path, K: np.ndarray, depth_unit_m: float, frames: list[RgbdImages]) -> Path:
-    """tests/test_realsense.py's `record` for given frames and intrinsics: a software device
-    (depth z16 + colour rgb8 at W x H, both with K and no distortion, identity extrinsics,
-    `depth_unit_m`) streaming `frames` as depth/colour pairs at 30 Hz, recorded to a .db3."""
-    device = rs.software_device()
-    device.create_matcher(rs.matchers.default)
-    device.register_info(rs.camera_info.serial_number, SERIAL)
-    device.register_info(rs.camera_info.name, "Simulated RealSense")
-    depth_sensor = device.add_sensor("Depth")
-    color_sensor = device.add_sensor("Color")
-    depth_profile = depth_sensor.add_video_stream(
-        video_stream(rs.stream.depth, 0, rs.format.z16, 2, intrinsics(K))
-    ).as_video_stream_profile()
-    color_profile = color_sensor.add_video_stream(
-        video_stream(rs.stream.color, 1, rs.format.rgb8, 3, intrinsics(K))
-    ).as_video_stream_profile()
-    depth_sensor.add_read_only_option(rs.option.depth_units, depth_unit_m)
-    identity = rs.extrinsics()
-    identity.rotation, identity.translation = [1, 0, 0, 0, 1, 0, 0, 0, 1], [0, 0, 0]
-    depth_profile.register_extrinsics_to(color_profile, identity)
-
-    path = path.with_suffix(".db3")
-    recorder = rs.recorder(str(path), device)
-    received: list[int] = []
-    for sensor, profile in ((depth_sensor, depth_profile), (color_sensor, color_profile)):
-        sensor.open(profile)
-        sensor.start(lambda frame: received.append(frame.get_frame_number()))
-    for n, images in enumerate(frames):
-        depth = np.ascontiguousarray(images.depth, np.uint16)
-        color = np.ascontiguousarray(images.color, np.uint8)
-        for sensor, profile, pixels, bpp in (
-            (depth_sensor, depth_profile, depth, 2),
-            (color_sensor, color_profile, color, 3),
-        ):
-            frame = rs.software_video_frame()
-            frame.pixels, frame.stride, frame.bpp = pixels, W * bpp, bpp
-            frame.timestamp, frame.frame_number = n * 1000 / FPS, n
-            frame.domain = rs.timestamp_domain.hardware_clock
-            frame.profile = profile
-            sensor.on_video_frame(frame)
-        time.sleep(1 / FPS)  # paced like a camera: playback replays at the recorded times
-    for sensor in (depth_sensor, color_sensor):
-        sensor.stop()
-        sensor.close()
-    recorder.pause()
-    del recorder  # closes the file
-    assert len(received) == 2 * len(frames)
-    return path
-
-
 @pytest.fixture(scope="module")
 def recording(rendered: Rendered, tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("realsense_sim") / "vase"
-    return record(path, rendered.model.color.K, rendered.model.depth_scale_m, rendered.frames)
+    frames = [(f.depth, f.color) for f in rendered.frames]
+    return record(path, frames, rendered.model.color.K, rendered.model.depth_scale_m, SERIAL)
 
 
 @dataclass

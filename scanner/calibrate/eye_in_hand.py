@@ -80,8 +80,7 @@ def build_model(config: CalibrateConfig) -> CameraModel:
 def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> CalibrationWorld:
     """The true simulated cell (board on its stand unless with_board is False, no object), or
     the hardware of `config.driver`, and a collision checker on the software's view of the cell."""
-    rgbd = config.rgbd.rgbd_camera() if config.sensor == "rgbd" else None
-    stereo = rgbd or config.camera.stereo_camera()
+    stereo = build_model(config)
     X_FC = camera_tool.rig_X_FC(stereo.X_CR)
     fixtures = ()
     if with_board:
@@ -95,15 +94,7 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
     elif config.hardware is not None:
         hardware, sim = _configured_cell(config, stereo, X_FC, (*fixtures, *extras))
     else:
-        sim = create_simulation(
-            config.cell,
-            None,
-            config.error_model,
-            config.camera.stereo_camera(),
-            X_FC,
-            extras=(*fixtures, *extras),
-            rgbd=rgbd,
-        )
+        sim = _board_cell(config, X_FC, (*fixtures, *extras))
         hardware = Hardware(sim.robot, sim.camera)
     planner_cell = build_workcell(
         config.cell, None, X_FC, stereo.X_CR, extras=fixtures, include_object=False
@@ -123,22 +114,22 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
     )
 
 
+def _board_cell(config: CalibrateConfig, X_FC: np.ndarray, extras) -> Simulation:
+    """The true simulated calibration cell (no object) with the configured sensor."""
+    rgbd = config.rgbd.rgbd_camera() if config.sensor == "rgbd" else None
+    stereo = config.camera.stereo_camera()
+    return create_simulation(
+        config.cell, None, config.error_model, stereo, X_FC, extras=extras, rgbd=rgbd
+    )
+
+
 def _configured_cell(config: CalibrateConfig, stereo, X_FC, extras):
     """The hardware: section's robot link and camera (the simulated camera kind: the simulated
     board cell, rendered at the joints the link reports)."""
     robot = connect_robot(config.hardware.robot)
     try:
         if config.hardware.camera.kind == "simulated":
-            rgbd = stereo if config.sensor == "rgbd" else None
-            sim = create_simulation(
-                config.cell,
-                None,
-                config.error_model,
-                config.camera.stereo_camera(),
-                X_FC,
-                extras=extras,
-                rgbd=rgbd,
-            )
+            sim = _board_cell(config, X_FC, extras)
             return Hardware(robot, camera_at_reported_joints(sim, robot)), sim
         return Hardware(robot, open_camera(config.hardware.camera, stereo.image_size)), None
     except BaseException:
