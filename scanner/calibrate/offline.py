@@ -29,7 +29,7 @@ from reconstruction.calibration.pose_files import (
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.errors import RefusedResultError, ScannerError
 from reconstruction.common.yaml_files import read_yaml
-from reconstruction.depth.camera_model import camera_model_from_dict
+from reconstruction.depth.camera_model import RgbdCamera, camera_model_from_dict
 from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera, stereo_camera_from_dict
 from robots.simulation.truth import load_truth
 from scanner.calibrate.cameras_only import CamerasRun, calibrate_cameras, require_board_size
@@ -292,10 +292,11 @@ def _truth_of(root: Path) -> tuple[np.ndarray, StereoCamera] | None:
     return truth.X_FC, truth.stereo
 
 
-def _with_depth_correction(store: CaptureStore, board: BoardSpec, solution):
+def _with_depth_correction(
+    store: CaptureStore, board: BoardSpec, solution: Solution, device: RgbdCamera
+):
     """An RGB-D calibration's depth-scale correction from the board's plane in the depth
     images (at the calibrated colour camera's board poses), into the calibration."""
-    device = camera_model_from_dict(store.read_manifest()["camera"], "scan.yaml:camera")
     found = [o for o in solution.observations if o.left is not None]
     depths = [store.read_capture(int(o.name)).depth for o in found]
     fit = depth_scale_fit(
@@ -350,13 +351,17 @@ def calibrate_directory(
         require_replaceable(results_dir, CALIBRATION_FILE, force, "calibration")
     if isinstance(intrinsics, PinholeCamera) and intrinsics.width == 1:
         intrinsics = _with_size(intrinsics, size)
-    rgbd = is_store and store.read_capture(store.captured_indices()[0]).sensor == "rgbd"
+    # The run's recorded camera model says which sensor took the captures.
+    device = None
+    if is_store and "camera" in manifest:
+        device = camera_model_from_dict(manifest["camera"], f"{store.manifest_path}:camera")
+    rgbd = isinstance(device, RgbdCamera)
     if rgbd and intrinsics is None:
         # The colour camera's factory intrinsics (the device model the run recorded): one
         # camera's intrinsics from a few board views are worse (measured in simulation with
         # 10 stations: X_FC 2.35 mm and the depth scale 0.58 % off with calibrated
         # intrinsics, 0.26 mm and 0.012 % with the device's own).
-        intrinsics = camera_model_from_dict(manifest["camera"], "scan.yaml:camera").color
+        intrinsics = device.color
     solution = solve(board, observations, size, settings, intrinsics, source)
     problems = implausible_figures(solution.hand_eye, settings)
     if problems:
@@ -368,7 +373,7 @@ def calibrate_directory(
         )
     depth_report = {}
     if rgbd:
-        solution, depth_report = _with_depth_correction(store, board, solution)
+        solution, depth_report = _with_depth_correction(store, board, solution, device)
     truth = _truth_of(root)
     errors = None if truth is None else truth_errors(solution, *truth)
     if errors is not None and depth_report:
