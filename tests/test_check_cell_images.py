@@ -59,3 +59,22 @@ def test_the_board_item_needs_the_board_in_both_images():
     blank = StereoImages(pair.left, np.full_like(pair.right, 128), 0.0)
     missing = {i.name: i for i in image_items(blank, ImageLimits(), board)}
     assert not missing["board"].ok and "0 right" in missing["board"].detail
+
+
+def test_the_opencv_camera_reads_a_real_recorded_pair_that_passes_the_image_checks():
+    """The defaults on real images: OpenCV's stereo sample read as a recording (image
+    sequences left%02d.jpg / right%02d.jpg) by the OpenCV camera driver, sized as calibrated,
+    and its pairs pass exposure and sharpness."""
+    from robots.drivers.opencv_stereo import OpenCvStereoCamera
+    from robots.drivers.settings import CameraLinkConfig
+
+    folder = shared_data("real/stereo_calibration_opencv_sample")
+    settings = CameraLinkConfig(
+        left=str(folder / "left" / "left%02d.jpg"), right=str(folder / "right" / "right%02d.jpg")
+    )
+    with OpenCvStereoCamera(settings, (640, 480)) as camera:
+        assert camera.check_size() == (640, 480)
+        for _ in range(3):
+            pair = camera.capture()
+            assert pair.left.shape == pair.right.shape == (480, 640, 3)
+            assert all(ok for ok in verdicts(pair).values()), verdicts(pair)
