@@ -168,7 +168,7 @@ def run_reconstruct_command(args: argparse.Namespace) -> int:
         print(line)
     _warn_handeye(run.report)
     print(f"results: {run.results_dir}")
-    return 0
+    return _verdict(run.report)
 
 
 def _reconstruct_batch(dirs: list[Path], options, args: argparse.Namespace) -> int:
@@ -176,11 +176,16 @@ def _reconstruct_batch(dirs: list[Path], options, args: argparse.Namespace) -> i
 
     from scanner.reconstruct.batch import run_batch
     from scanner.reconstruct.command import reconstruct_one, summary_lines
+    from scanner.reports.self_checks import self_check_failures
 
     def done(outcome) -> None:
         if outcome.ok:
             lines = summary_lines(outcome.report)
-            print(f"{outcome.scan_dir}: ok, results {outcome.results_dir}; " + "; ".join(lines))
+            failures = self_check_failures(outcome.report)
+            state = "FAILED its self-checks" if failures else "ok"
+            print(
+                f"{outcome.scan_dir}: {state}, results {outcome.results_dir}; " + "; ".join(lines)
+            )
             _warn_handeye(outcome.report)
         else:
             print(f"{outcome.scan_dir}: FAILED: {outcome.error}", flush=True)
@@ -188,8 +193,13 @@ def _reconstruct_batch(dirs: list[Path], options, args: argparse.Namespace) -> i
     workers = args.workers or os.cpu_count() or 1
     outcomes = run_batch(dirs, reconstruct_one, options, workers, args.ray_address, done)
     failed = [o for o in outcomes if not o.ok]
-    print(f"batch: {len(outcomes) - len(failed)} of {len(outcomes)} scans reconstructed")
-    return 1 if failed else 0
+    doubtful = [o for o in outcomes if o.ok and self_check_failures(o.report)]
+    print(
+        f"batch: {len(outcomes) - len(failed)} of {len(outcomes)} scans reconstructed"
+        + (f", {len(doubtful)} of them failed their self-checks" if doubtful else "")
+    )
+    # A result that failed its self-checks counts as a failed scan: 1 as for any failure.
+    return 1 if failed or doubtful else 0
 
 
 def _warn_handeye(report: dict) -> None:
@@ -220,4 +230,12 @@ def run_merge_command(args: argparse.Namespace) -> int:
         )
     _warn_handeye(r)
     print(f"results: {run.results_dir}")
-    return 0
+    return _verdict(r)
+
+
+def _verdict(report: dict) -> int:
+    """Print the verdict of a result's self-checks as the last line; the exit code."""
+    from scanner.reports.self_checks import exit_code, verdict_line
+
+    print(verdict_line(report))
+    return exit_code(report)

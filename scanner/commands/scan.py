@@ -190,6 +190,7 @@ def run_scan_command(args: argparse.Namespace) -> int:
 
     from scanner.configs.scan import load_scan_config, with_overrides
     from scanner.reconstruct.progress import ProgressBar
+    from scanner.reports.self_checks import exit_code, verdict_line
     from scanner.scan.run import run_scan
 
     flags = dict(
@@ -246,7 +247,10 @@ def run_scan_command(args: argparse.Namespace) -> int:
     if r["status"] == "interrupted":
         print(f"continue with: scanner scan --resume {result.scan_dir}")
         return 130
-    return 0
+    if "self_checks" not in r:
+        return 0  # captured only (reconstruct: false): nothing was checked
+    print(verdict_line(r))
+    return exit_code(r)
 
 
 def scan_result_lines(result) -> list[str]:

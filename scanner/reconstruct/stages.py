@@ -43,6 +43,7 @@ from scanner.reconstruct.evaluation import (
 )
 from scanner.reconstruct.scan_views import gather_views, with_roi_centre
 from scanner.reconstruct.view_stream import StreamedViews, settings_key
+from scanner.reports.self_checks import self_check_record
 from scanner.scan_dir.captures import atomic_write_text
 from scanner.scan_dir.manifest import SavedScan, open_scan
 from scanner.scan_dir.results_folder import free_results_dir, holds_result, staged_folder
@@ -279,6 +280,7 @@ def _reconstruct(
         report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
         report["reconstruct_s"] = time.perf_counter() - t0
         merged = {**earlier, **report}
+        merged["self_checks"] = self_check_record(merged)
         _write_report(staging, merged)
     return ReconstructRun(result, merged, out)
 
