@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robots.models.rx60 import RX60
+from reconstruction.calibration.robot_errors import ArmModel
+from robots.models.rx60 import LINK_LENGTHS, RX60
 
 TWO_PI = 2 * math.pi
 # Below this sin(q5) the wrist is singular: q4 + q6 is fixed, q4 is taken from the seed.
@@ -45,6 +46,18 @@ def fk_flange(robot: RX60, q: np.ndarray) -> np.ndarray:
     X[:3, :3] = R_WF
     X[:3, 3] = p_WW + robot.wrist_to_flange_m * R_WF[:, 2]
     return X
+
+
+def arm_model(robot: RX60 = RX60()) -> ArmModel:
+    """The RX60's kinematics with error parameters (joint zero offsets, then LINK_LENGTHS'
+    corrections) for the hand-eye calibration's robot errors."""
+    fields = tuple(LINK_LENGTHS)
+
+    def flange_pose(q: np.ndarray, p: np.ndarray) -> np.ndarray:
+        arm = robot.with_length_corrections(dict(zip(fields, p[6:]))) if np.any(p[6:]) else robot
+        return fk_flange(arm, np.asarray(q, float) + p[:6])
+
+    return ArmModel(flange_pose, tuple(LINK_LENGTHS.values()))
 
 
 def _arm_branches(robot: RX60, p_WW: np.ndarray) -> list[tuple[float, float, float]]:

@@ -31,7 +31,9 @@ from reconstruction.calibration.hand_eye import (
     solve_every_method,
     solve_hand_eye,
 )
+from reconstruction.calibration.held_out import make_folds
 from reconstruction.calibration.observations import PoseObservation, board_pose
+from reconstruction.calibration.quality import CalibrationQuality, assess, combined_sigma
 from reconstruction.calibration.refine import (
     Refinement,
     pose_rms,
@@ -39,9 +41,10 @@ from reconstruction.calibration.refine import (
     reprojection_residuals,
     sensor_points,
 )
+from reconstruction.calibration.robot_errors import ArmModel, RobotErrors, estimate
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.errors import ScannerError
-from reconstruction.common.transforms import mean_pose
+from reconstruction.common.transforms import mean_pose, skew
 from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera
 
 
@@ -87,11 +90,30 @@ class HandEyeCalibration:
     # (6, 6) covariance of X_FC: rotation vector (rad) then translation (m), in the camera frame
     # C (X_FC_true = X_FC @ twist_to_pose(delta)); see `hand_eye_covariance`.
     X_FC_covariance: np.ndarray = field(default_factory=lambda: np.full((6, 6), np.nan))
+    # Held-out prediction, bootstrap and the methods' agreement (None: not assessed).
+    quality: CalibrationQuality | None = None
+    # --robot-offsets' outcome (None: not asked); its parameters are in use when it says kept.
+    robot_errors: RobotErrors | None = None
 
     @property
     def X_FC_sigma(self) -> np.ndarray:
-        """(6,) standard deviations: rotation (rad) about C's x y z, translation (m) along them."""
+        """(6,) standard deviations: rotation (rad) about C's x y z, translation (m) along them;
+        per axis the larger of the covariance's and the bootstrap's (`quality.combined_sigma`)."""
+        if self.quality is not None:
+            return combined_sigma(self.X_FC_covariance, self.quality.bootstrap_sigma)
         return np.sqrt(np.clip(np.diag(self.X_FC_covariance), 0.0, None))
+
+    @property
+    def X_FC_covariance_sigma(self) -> np.ndarray:
+        """(6,) the covariance's standard deviations alone."""
+        return np.sqrt(np.clip(np.diag(self.X_FC_covariance), 0.0, None))
+
+    @property
+    def robot_params(self) -> np.ndarray | None:
+        """The arm's error parameters in use (`robot_errors.ArmModel`); None when none are."""
+        if self.robot_errors is None or not self.robot_errors.kept:
+            return None
+        return self.robot_errors.params
 
     @property
     def used(self) -> list[str]:
@@ -204,8 +226,12 @@ def calibrate_hand_eye(
     observations: Sequence[PoseObservation],
     cameras: StereoCamera | PinholeCamera,
     settings: CalibrationSettings = CalibrationSettings(),
+    arm: ArmModel | None = None,
+    robot_offsets: bool = False,
 ) -> HandEyeCalibration:
-    """X_FC (and X_WB) from robot poses and board detections; see the module docstring."""
+    """X_FC (and X_WB) from robot poses and board detections; see the module docstring.
+    `robot_offsets`: also the arm's observable zero offsets and link lengths
+    (`robot_errors.estimate`; `arm` is its kinematics, the observations carry their joints)."""
     usable = [
         o
         for o in observations
@@ -239,13 +265,21 @@ def calibrate_hand_eye(
             board, inliers, cameras, X_FC, X_WB, replace(settings, pixel_sigma_px=pixel_sigma)
         )
         X_FC, X_WB = refined.X_FC, refined.X_WB
+    final_settings = replace(settings, pixel_sigma_px=pixel_sigma)
+    folds = make_folds(len(inliers), settings.held_out_folds)
+    errors = None
+    if robot_offsets:
+        refined, errors = estimate(board, inliers, cameras, refined, final_settings, arm, folds)
+        X_FC, X_WB = refined.X_FC, refined.X_WB
 
     # Final residuals of every pose (outliers too) under the final estimate.
     sensors_all = sensor_points(board, usable, cameras)
+    if refined.robot_params is not None:
+        X_WF_all = np.array([arm.flange_pose(o.q_rad, refined.robot_params) for o in usable])
+    else:
+        X_WF_all = np.array([o.X_WF for o in usable])
     rms_all = pose_rms(
-        sensors_all,
-        reprojection_residuals(sensors_all, np.array([o.X_WF for o in usable]), X_FC, X_WB),
-        len(usable),
+        sensors_all, reprojection_residuals(sensors_all, X_WF_all, X_FC, X_WB), len(usable)
     )
     by_name = {o.name: float(r) for o, r in zip(usable, rms_all)}
     residuals = []
@@ -260,6 +294,20 @@ def calibrate_hand_eye(
     X_CB_in = [X_CB[o.name] for o in inliers]
     opencv, opencv_failed = solve_every_method(X_WF_in, X_CB_in)
     scatter, scatter_max = board_scatter(X_WF_in, X_FC, X_CB_in)
+    covariance = hand_eye_covariance(refined.X_FC_covariance, X_FC, settings)
+    quality = assess(
+        board,
+        inliers,
+        cameras,
+        refined,
+        X_CB_in,
+        opencv,
+        covariance,
+        np.diag(common_robot_error_covariance(X_FC, settings)),
+        folds,
+        settings.bootstrap_samples,
+        None if arm is None else arm.flange_pose,
+    )
     return HandEyeCalibration(
         X_FC,
         X_WB,
@@ -275,7 +323,9 @@ def calibrate_hand_eye(
         {o.name: xi for o, xi in zip(inliers, refined.corrections)},
         opencv_failed,
         pixel_sigma,
-        hand_eye_covariance(refined.X_FC_covariance, X_FC, settings),
+        covariance,
+        quality,
+        errors,
     )
 
 
@@ -283,20 +333,35 @@ def hand_eye_covariance(
     data_covariance: np.ndarray, X_FC: np.ndarray, settings: CalibrationSettings
 ) -> np.ndarray:
     """X_FC's covariance (6, 6; rotation rad, translation m, in C): what the data determine plus
-    what no hand-eye data can, a constant error of the last joint's zero.
+    what no hand-eye data can, the part of the robot's error that is the same in every pose.
 
-    That offset turns the flange about its own z axis by the same angle in every pose, so
-    X_WF Rz(d) X_FC explains every image exactly as X_WF X_FC' with X_FC' = Rz(d) X_FC: it goes
-    into X_FC whatever the images, and the refinement's covariance cannot see it. Its standard
-    deviation is the robot's rotation accuracy (solver.robot_rotation_sigma_rad). Measured on the
-    simulator (encoder offsets of 0.01 deg per joint): without this term the rotation about the
-    optical axis was off by up to 3.4 of its sigmas in 3 of 10 seeded calibrations.
+    A flange error E that is the same in every pose (an encoder zero of the last joint, a
+    tool-flange length, a mis-seated adapter) gives X_WF E X_FC = X_WF X_FC' with
+    X_FC' = E X_FC: it goes into X_FC whatever the images, and neither the refinement's
+    covariance nor resampling the views can see it. Its size is the robot's accuracy
+    (solver.robot_rotation_sigma_rad, robot_translation_sigma_m, in the flange frame). Measured
+    on the simulator: with only the last joint's zero counted (encoder offsets of 0.01 deg per
+    joint) the rotation about the optical axis was off by up to 3.4 of its sigmas in 3 of 10
+    calibrations; with link-length errors of 0.5-1 mm, X_FC was off by 2-18 sigmas of the
+    covariance and the bootstrap in every one.
     """
+    return data_covariance + common_robot_error_covariance(X_FC, settings)
+
+
+def common_robot_error_covariance(X_FC: np.ndarray, settings: CalibrationSettings) -> np.ndarray:
+    """(6, 6) the covariance in C of X_FC' = E X_FC for a flange error E with the robot's
+    accuracy (see `hand_eye_covariance`); zero when the robot poses are trusted exactly."""
     if not robot_corrections_enabled(settings):
-        return data_covariance
+        return np.zeros((6, 6))
     R_CF = X_FC[:3, :3].T
-    z_F = np.array([0.0, 0.0, 1.0])
-    # d(delta)/d(angle) of X_FC^-1 Rz(angle) X_FC: the rotation axis and the moment of the
-    # camera origin about the flange axis, both in C.
-    g = np.concatenate([R_CF @ z_F, R_CF @ np.cross(z_F, X_FC[:3, 3])])
-    return data_covariance + settings.robot_rotation_sigma_rad**2 * np.outer(g, g)
+    p_CF = -R_CF @ X_FC[:3, 3]
+    # The adjoint of X_CF maps a flange-frame twist (rotation, translation) into C.
+    ad = np.zeros((6, 6))
+    ad[:3, :3] = R_CF
+    ad[3:, 3:] = R_CF
+    ad[3:, :3] = skew(p_CF) @ R_CF
+    sigma = np.r_[
+        np.full(3, settings.robot_rotation_sigma_rad),
+        np.full(3, settings.robot_translation_sigma_m),
+    ]
+    return ad @ np.diag(sigma**2) @ ad.T

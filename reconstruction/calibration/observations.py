@@ -16,14 +16,16 @@ from reconstruction.stereo.camera_model import PinholeCamera
 class PoseObservation:
     """One robot pose: its name (file or capture), the flange pose X_WF the robot reported (None
     for a camera-only calibration, which has no robot), the board points each camera found
-    (None: board not found), and why the left camera's board was not found (empty when it was,
-    or when the reason is unknown)."""
+    (None: board not found), why the left camera's board was not found (empty when it was,
+    or when the reason is unknown), and the joints the robot reported (None when the data
+    have only poses; the joint offsets need them)."""
 
     name: str
     X_WF: np.ndarray | None
     left: Detection | None
     right: Detection | None = None
     not_found: str = ""
+    q_rad: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.X_WF is None:

@@ -6,16 +6,18 @@ X_WB (plus, optionally, a small correction of each reported robot pose) explain 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
+from scipy.optimize._numdiff import approx_derivative
+from scipy.sparse import csr_matrix, lil_matrix
 
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.observations import PoseObservation
 from reconstruction.calibration.settings import CalibrationSettings
+from reconstruction.common.robust_loss import irls_weights
 from reconstruction.common.transforms import invert, transform_points, twist_to_pose
 from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera, project_points
 
@@ -97,25 +99,59 @@ class Refinement:
     # Covariance (6, 6) of X_FC's twist delta: rotation vector (rad) then translation (m), both
     # in the camera frame C (X_FC_true = X_FC @ twist_to_pose(delta)); see `x_fc_covariance`.
     X_FC_covariance: np.ndarray = field(default_factory=lambda: np.full((6, 6), np.nan))
+    # The arm's error parameters (robot_errors.ArmModel; None: the reported poses were used)
+    # and which of them were estimated.
+    robot_params: np.ndarray | None = None
+    estimated: tuple[int, ...] = ()
+    linearization: Linearization | None = None
 
 
-def _jacobian_sparsity(sensors: list[SensorPoints], n_poses: int, with_corrections: bool):
+@dataclass(frozen=True, eq=False)
+class Linearization:
+    """The refinement's problem linearised at its solution, for cheap refits on other weights
+    of the same poses (held-out folds, bootstrap resamples; see `calibration.held_out`).
+
+    Parameters: X_FC's twist (0:6), X_WB's twist (6:12), the estimated robot parameters
+    (12:12 + n_offsets), then 6 per pose for the robot corrections when estimated.
+    J: raw Jacobian of the residuals (in sigmas) by forward differences; f: the residuals;
+    irls: each residual's robust-loss weight at the solution; row_pose: the pose each row
+    belongs to (a pixel row or a robot-correction prior row)."""
+
+    J: csr_matrix
+    f: np.ndarray
+    irls: np.ndarray
+    row_pose: np.ndarray
+    n_poses: int
+    n_offsets: int
+    corrections: bool
+
+
+def _jacobian_sparsity(
+    sensors: list[SensorPoints], n_poses: int, with_corrections: bool, n_offsets: int = 0
+):
     n_pixels = sum(2 * len(s.pose_index) for s in sensors)
-    n_params = 12 + (6 * n_poses if with_corrections else 0)
+    base = 12 + n_offsets
+    n_params = base + (6 * n_poses if with_corrections else 0)
     n_rows = n_pixels + (6 * n_poses if with_corrections else 0)
     J = lil_matrix((n_rows, n_params), dtype=int)
-    J[:n_pixels, :12] = 1
+    J[:n_pixels, :base] = 1
     if with_corrections:
         row = 0
         for s in sensors:
             for k in s.pose_index:
-                J[row : row + 2, 12 + 6 * k : 18 + 6 * k] = 1
+                J[row : row + 2, base + 6 * k : base + 6 + 6 * k] = 1
                 row += 2
         for k in range(n_poses):
-            J[n_pixels + 6 * k : n_pixels + 6 * k + 6, 12 + 6 * k : 18 + 6 * k] = np.eye(
+            J[n_pixels + 6 * k : n_pixels + 6 * k + 6, base + 6 * k : base + 6 + 6 * k] = np.eye(
                 6, dtype=int
             )
     return J
+
+
+def _row_pose(sensors: list[SensorPoints], n_poses: int, with_corrections: bool) -> np.ndarray:
+    pixel_rows = [np.repeat(s.pose_index, 2) for s in sensors]
+    prior_rows = [np.repeat(np.arange(n_poses), 6)] if with_corrections else []
+    return np.concatenate(pixel_rows + prior_rows).astype(int)
 
 
 def refine_on_board(
@@ -125,6 +161,10 @@ def refine_on_board(
     X_FC0: np.ndarray,
     X_WB0: np.ndarray,
     settings: CalibrationSettings = CalibrationSettings(),
+    joints: np.ndarray | None = None,
+    flange_pose: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    estimated: Sequence[int] = (),
+    params0: np.ndarray | None = None,
 ) -> Refinement:
     """Maximum-likelihood X_FC and X_WB: reprojection errors of every board point in every
     camera (sigma pixel_sigma_px) and, when the robot sigmas are positive, a small correction
@@ -135,11 +175,40 @@ def refine_on_board(
     robot's accuracy bounds the rest. A robust loss (in sigmas) limits the pull of bad points.
 
     Poses are parameterised as X0 @ exp(xi): small, well-scaled parameters near the seed.
+
+    With `estimated` (indices into the arm's error parameters p, `robot_errors.ArmModel`; and
+    every pose's reported `joints` with the arm's `flange_pose(q, p)`), those parameters (joint
+    zero offsets, link lengths) are estimated too: each flange pose is then flange_pose(q, p)
+    rather than the reported X_WF, so a systematic robot error is explained once instead of by
+    every pose's correction and, through them, by X_FC.
     """
     sensors = sensor_points(board, observations, cameras)
     X_WF = np.array([o.X_WF for o in observations])
     n = len(observations)
     corrections = settings.robot_translation_sigma_m > 0 and settings.robot_rotation_sigma_rad > 0
+    estimated = tuple(int(j) for j in estimated)
+    m = len(estimated)
+    if m or params0 is not None:
+        if joints is None or flange_pose is None or params0 is None:
+            raise ValueError("robot parameters need every pose's joints and the arm's model")
+        joints = np.asarray(joints, float)
+        base_params = np.asarray(params0, float).copy()
+    else:
+        base_params = None
+
+    def params_of(x) -> np.ndarray | None:
+        if base_params is None:
+            return None
+        p = base_params.copy()
+        p[list(estimated)] += x[12 : 12 + m]
+        return p
+
+    def flange_poses(x) -> np.ndarray:
+        if base_params is None:
+            return X_WF
+        p = params_of(x)
+        return np.array([flange_pose(q, p) for q in joints])
+
     prior_scale = np.r_[
         np.full(3, 1 / max(settings.robot_rotation_sigma_rad, 1e-12)),
         np.full(3, 1 / max(settings.robot_translation_sigma_m, 1e-12)),
@@ -148,24 +217,27 @@ def refine_on_board(
     def unpack(x):
         X_FC = X_FC0 @ twist_to_pose(x[:6])
         X_WB = X_WB0 @ twist_to_pose(x[6:12])
-        xi = x[12:].reshape(n, 6) if corrections else np.zeros((n, 6))
+        xi = x[12 + m :].reshape(n, 6) if corrections else np.zeros((n, 6))
         return X_FC, X_WB, xi
 
-    def corrected(xi):
-        return np.array([X @ twist_to_pose(d) for X, d in zip(X_WF, xi)]) if corrections else X_WF
+    def corrected(X_WF_base, xi):
+        if not corrections:
+            return X_WF_base
+        return np.array([X @ twist_to_pose(d) for X, d in zip(X_WF_base, xi)])
 
     def fun(x):
         X_FC, X_WB, xi = unpack(x)
-        pixels = reprojection_residuals(sensors, corrected(xi), X_FC, X_WB)
+        pixels = reprojection_residuals(sensors, corrected(flange_poses(x), xi), X_FC, X_WB)
         parts = [r.ravel() / settings.pixel_sigma_px for r in pixels]
         if corrections:
             parts.append((xi * prior_scale).ravel())
         return np.concatenate(parts)
 
+    sparsity = _jacobian_sparsity(sensors, n, corrections, m)
     result = least_squares(
         fun,
-        np.zeros(12 + (6 * n if corrections else 0)),
-        jac_sparsity=_jacobian_sparsity(sensors, n, corrections),
+        np.zeros(12 + m + (6 * n if corrections else 0)),
+        jac_sparsity=sparsity,
         loss=settings.robust_loss,
         f_scale=settings.robust_scale,
         x_scale="jac",
@@ -183,17 +255,32 @@ def refine_on_board(
     )
     X_FC, X_WB, xi = unpack(result.x)
     covariance = x_fc_covariance(result.jac, result.fun)
-    residuals = reprojection_residuals(sensors, X_WF, X_FC, X_WB)
-    corrected = reprojection_residuals(sensors, corrected(xi), X_FC, X_WB)
+    X_WF_model = flange_poses(result.x)
+    residuals = reprojection_residuals(sensors, X_WF_model, X_FC, X_WB)
+    after = reprojection_residuals(sensors, corrected(X_WF_model, xi), X_FC, X_WB)
+    # The raw Jacobian at the solution (scipy's result.jac is rescaled by the robust loss).
+    J = approx_derivative(fun, result.x, f0=result.fun, sparsity=sparsity)
+    linearization = Linearization(
+        csr_matrix(J),
+        result.fun.copy(),
+        irls_weights(result.fun, settings.robust_loss, settings.robust_scale),
+        _row_pose(sensors, n, corrections),
+        n,
+        m,
+        corrections,
+    )
     return Refinement(
         X_FC,
         X_WB,
         _rms(residuals),
         pose_rms(sensors, residuals, n),
         xi,
-        _rms(corrected),
+        _rms(after),
         int(result.nfev),
         covariance,
+        params_of(result.x),
+        estimated,
+        linearization,
     )
 
 

@@ -31,6 +31,12 @@ class CalibrationSettings:
     outlier_factor, outlier_min_px: a pose is an outlier when its RMS reprojection error exceeds
         both factor x the median pose RMS and min_px.
     fix_k3: estimate only k1, k2, p1, p2 (fewer parameters for short focal-range data).
+    held_out_folds: views are held out in this many folds to measure prediction on views the
+        fit did not see (leave-one-out below 6 views).
+    bootstrap_samples: refits on views drawn with replacement for X_FC's uncertainty.
+    offset_min_independence: `--robot-offsets` estimates a joint's zero offset only when the
+        image change it makes is at least this independent (sine of the angle) of what X_FC
+        and the board pose can do.
     max_reprojection_rms_px, max_board_scatter_m, max_hand_eye_translation_m: a calibration
         beyond any of these is refused as physically implausible (a wrong pose convention
         gives hundreds of px, tens of cm of board scatter and metres of X_FC; real sets of
@@ -51,6 +57,9 @@ class CalibrationSettings:
     outlier_factor: float = 4.0
     outlier_min_px: float = 1.0
     fix_k3: bool = False
+    held_out_folds: int = 5
+    bootstrap_samples: int = 200
+    offset_min_independence: float = 0.05
     max_reprojection_rms_px: float = 10.0
     max_board_scatter_m: float = 0.02
     max_hand_eye_translation_m: float = 0.5
@@ -61,6 +70,8 @@ class CalibrationSettings:
                 f"solver.min_poses: must be at least 3 (hand-eye needs 3), got {self.min_poses}"
             )
         require_count("solver", self, ("min_points_per_view",), minimum=4)
+        require_count("solver", self, ("held_out_folds",), minimum=2)
+        require_count("solver", self, ("bootstrap_samples",), minimum=10)
         check_loss(self.robust_loss, "solver.robust_loss")
         require_positive(
             "solver",
@@ -74,5 +85,6 @@ class CalibrationSettings:
                 "max_reprojection_rms_px",
                 "max_board_scatter_m",
                 "max_hand_eye_translation_m",
+                "offset_min_independence",
             ),
         )

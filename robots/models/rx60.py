@@ -24,6 +24,16 @@ _DEG = math.pi / 180.0
 ACCELERATION_TIME_S = 0.3
 
 
+# The RX60's link lengths a kinematic calibration may correct, and their words.
+LINK_LENGTHS = {
+    "shoulder_height_m": "shoulder height",
+    "upper_arm_m": "upper arm",
+    "elbow_offset_m": "elbow offset",
+    "forearm_m": "forearm",
+    "wrist_to_flange_m": "wrist to flange",
+}
+
+
 @dataclass(frozen=True)
 class RX60:
     """Kinematic parameters (metres) and joint limits (radians, rad/s, rad/s^2)."""
@@ -57,6 +67,16 @@ class RX60:
     @property
     def upper(self) -> np.ndarray:
         return np.array(self.upper_limits_rad)
+
+    def with_length_corrections(self, corrections_m) -> RX60:
+        """This arm with its links longer by `corrections_m` ({field name: metres}, fields of
+        LINK_LENGTHS): the arm a kinematic calibration found."""
+        from dataclasses import replace
+
+        unknown = set(corrections_m) - set(LINK_LENGTHS)
+        if unknown:
+            raise ValueError(f"not link lengths of the RX60: {', '.join(sorted(unknown))}")
+        return replace(self, **{k: getattr(self, k) + float(v) for k, v in corrections_m.items()})
 
     def within_limits(self, q: np.ndarray, tol_rad: float = 1e-9) -> bool:
         q = np.asarray(q, dtype=float)

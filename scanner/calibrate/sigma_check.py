@@ -77,31 +77,61 @@ def board_observations(
     seed: int,
     flange_pose,
     corner_noise_px: float = RENDERED_CORNER_NOISE_PX,
-) -> tuple[list[PoseObservation], np.ndarray]:
-    """Board corners as the true arm (encoder offsets of `ErrorModel(seed)`) and true X_FC see
-    them, X_WF as the controller reports it (`flange_pose(q)`); and the true X_FC."""
+    true_flange_pose=None,
+) -> tuple[list[PoseObservation], np.ndarray, np.ndarray]:
+    """Board corners as the true arm (encoder offsets of `ErrorModel(seed)`; its kinematics
+    `true_flange_pose`, default the nominal `flange_pose`) and true X_FC see them, X_WF and
+    the joints as the controller reports them (`flange_pose(q)`, q); the true X_FC and the
+    true joint offsets (true = reported + offset)."""
     truth = sample_truth(ErrorModel(seed=seed), X_FC_nominal, stereo, np.eye(4))
+    true_pose = true_flange_pose or flange_pose
     p_B = board.object_points()
     rng = np.random.default_rng([seed, 11])
     out = []
     for k, q in enumerate(stations_q):
-        X_WC = flange_pose(np.asarray(q) + truth.joint_offsets_rad) @ truth.X_FC
+        X_WC = true_pose(np.asarray(q) + truth.joint_offsets_rad) @ truth.X_FC
         p_C = transform_points(invert(X_WC) @ X_WB, p_B)
         views = []
         for camera, X_SC in ((stereo.left, np.eye(4)), (stereo.right, invert(stereo.X_CR))):
             pixels = project_points(camera, transform_points(X_SC, p_C))
             pixels = pixels + rng.normal(0.0, corner_noise_px, pixels.shape)
             views.append(Detection(np.arange(len(p_B)), pixels))
-        out.append(PoseObservation(f"{k:04d}", flange_pose(np.asarray(q)), *views))
-    return out, np.array(truth.X_FC)
+        q = np.asarray(q, float)
+        out.append(PoseObservation(f"{k:04d}", flange_pose(q), *views, q_rad=q))
+    return out, np.array(truth.X_FC), np.array(truth.joint_offsets_rad)
+
+
+def kinematic_error_robot(robot, seed: int, magnitude_m: tuple[float, float]):
+    """The arm with its link lengths off by a random vector whose norm is drawn uniformly in
+    `magnitude_m` (per seed): a kinematic error that, unlike an encoder offset, changes the
+    flange pose differently in every pose and that no joint offset or X_FC explains.
+
+    The wrist-to-flange length is left exact: an error of it moves the flange along its own
+    axis by the same amount in every pose, which is by definition part of the mount (the
+    X_FC that the robot's reported poses need, and what a scan uses)."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng([seed, 29])
+    direction = rng.standard_normal(4)
+    e = direction / np.linalg.norm(direction) * rng.uniform(*magnitude_m)
+    return replace(
+        robot,
+        shoulder_height_m=robot.shoulder_height_m + e[0],
+        upper_arm_m=robot.upper_arm_m + e[1],
+        elbow_offset_m=robot.elbow_offset_m + e[2],
+        forearm_m=robot.forearm_m + e[3],
+    )
 
 
 def render_free_observations(
-    config: CalibrateConfig, seeds: Iterable[int]
-) -> list[tuple[list[PoseObservation], np.ndarray]]:
-    """(observations, true X_FC) per seed of `board_observations` at the stations `config`
-    plans: its board where its placement puts it, its camera on the nominal mount, stations
-    reached by the RX60's IK from the simulated arm's home joints."""
+    config: CalibrateConfig,
+    seeds: Iterable[int],
+    kinematic_error_m: tuple[float, float] | None = None,
+) -> list[tuple[list[PoseObservation], np.ndarray, np.ndarray]]:
+    """(observations, true X_FC, true joint offsets) per seed of `board_observations` at the
+    stations `config` plans: its board where its placement puts it, its camera on the nominal
+    mount, stations reached by the RX60's IK from the simulated arm's home joints. With
+    `kinematic_error_m` the true arm's link lengths are off (`kinematic_error_robot`)."""
     # Imported here: the calibration report imports this module for error_in_sigmas alone.
     from planners.ik import camera_pose, fk_flange, ik_camera, rig_centre_offset
     from robots.models.camera_tool import nominal_X_FC
@@ -124,9 +154,23 @@ def render_free_observations(
         HOME_Q,
     )
     stations_q = [s.q for s in plan.stations]
-    return [
-        board_observations(
-            config.board, X_WB, stations_q, stereo, X_FC, seed, lambda q: fk_flange(robot, q)
+    out = []
+    for seed in seeds:
+        true_robot = (
+            robot
+            if kinematic_error_m is None
+            else kinematic_error_robot(robot, seed, kinematic_error_m)
         )
-        for seed in seeds
-    ]
+        out.append(
+            board_observations(
+                config.board,
+                X_WB,
+                stations_q,
+                stereo,
+                X_FC,
+                seed,
+                lambda q: fk_flange(robot, q),
+                true_flange_pose=lambda q, r=true_robot: fk_flange(r, q),
+            )
+        )
+    return out
