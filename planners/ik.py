@@ -57,7 +57,7 @@ def arm_model(robot: RX60 = RX60()) -> ArmModel:
         arm = robot.with_length_corrections(dict(zip(fields, p[6:]))) if np.any(p[6:]) else robot
         return fk_flange(arm, np.asarray(q, float) + p[:6])
 
-    return ArmModel(flange_pose, tuple(LINK_LENGTHS.values()))
+    return ArmModel(flange_pose, fields, tuple(LINK_LENGTHS.values()))
 
 
 def _arm_branches(robot: RX60, p_WW: np.ndarray) -> list[tuple[float, float, float]]:

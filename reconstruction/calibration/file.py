@@ -10,6 +10,9 @@ YAML, SI units (metres, radians, pixels for intrinsics), one key per quantity:
     camera: {image_size: [w, h], K: ..., distortion: ...}  # one camera (only when no stereo)
     X_WB: [[...]]                               # board in the robot base (information)
     board: {kind: chessboard, cols: 10, rows: 7, spacing_m: 0.02, ...}
+    robot:                                      # the arm's own errors (--robot-offsets), or null
+      joint_offsets_rad: [d1, ..., d6]          # true joint = reported + offset
+      link_length_corrections_m: {upper_arm_m: 0.0003, ...}   # true length = drawn + this
     quality:                                    # what the calibration measured
       reprojection_rms_px: 0.12
       stereo_rms_px: 0.08                        # null for one camera
@@ -43,6 +46,57 @@ from reconstruction.stereo.camera_model import (
 )
 
 CALIBRATION_SCHEMA = "scanner.calibration/1"
+# A robot correction beyond these is not a calibration of a working arm but a wrong model.
+MAX_JOINT_OFFSET_RAD = np.radians(1.0)
+MAX_LENGTH_CORRECTION_M = 0.005
+
+
+@dataclass(frozen=True)
+class RobotCorrection:
+    """The arm's own errors a calibration found: the joints' zero offsets (rad, true = reported
+    + offset) and corrections of link lengths (m, by the arm model's field names). A scan with
+    this calibration computes its flange poses from the corrected arm."""
+
+    joint_offsets_rad: tuple[float, ...] = (0.0,) * 6
+    link_length_corrections_m: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        offsets = tuple(float(v) for v in self.joint_offsets_rad)
+        if len(offsets) != 6 or not all(abs(v) <= MAX_JOINT_OFFSET_RAD for v in offsets):
+            raise ScannerError(
+                "robot.joint_offsets_rad: expected 6 offsets within +-1 deg, got "
+                f"{list(self.joint_offsets_rad)!r}"
+            )
+        lengths = {str(k): float(v) for k, v in dict(self.link_length_corrections_m).items()}
+        if not all(abs(v) <= MAX_LENGTH_CORRECTION_M for v in lengths.values()):
+            raise ScannerError(
+                "robot.link_length_corrections_m: expected corrections within +-5 mm, got "
+                f"{lengths!r}"
+            )
+        object.__setattr__(self, "joint_offsets_rad", offsets)
+        object.__setattr__(self, "link_length_corrections_m", lengths)
+
+    def as_dict(self) -> dict:
+        return {
+            "joint_offsets_rad": list(self.joint_offsets_rad),
+            "link_length_corrections_m": dict(self.link_length_corrections_m),
+        }
+
+
+def robot_correction_from_dict(d, where: str) -> RobotCorrection | None:
+    if d is None:
+        return None
+    if not isinstance(d, dict):
+        raise ScannerError(f"{where}: robot: expected a mapping with joint_offsets_rad")
+    try:
+        return RobotCorrection(
+            tuple(d.get("joint_offsets_rad", (0.0,) * 6)),
+            dict(d.get("link_length_corrections_m") or {}),
+        )
+    except (TypeError, ValueError) as e:
+        raise ScannerError(f"{where}: robot: malformed ({e})") from None
+    except ScannerError as e:
+        raise ScannerError(f"{where}: {e}") from None
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,6 +119,8 @@ class Calibration:
     # An RGB-D device's depth-scale correction (true depth = reported x this), found with the
     # board; None for a stereo rig or when not measured.
     depth_correction: float | None = None
+    # The arm's own errors, when the calibration estimated and kept them (--robot-offsets).
+    robot: RobotCorrection | None = None
 
     def __post_init__(self) -> None:
         c = self.depth_correction
@@ -124,6 +180,7 @@ def calibration_to_dict(calibration: Calibration) -> dict:
         "board": _plain(calibration.board),
         "quality": _plain(calibration.quality),
         "depth_correction": calibration.depth_correction,
+        "robot": None if calibration.robot is None else calibration.robot.as_dict(),
     }
 
 
@@ -174,6 +231,7 @@ def calibration_from_dict(d: dict, where: str = "calibration") -> Calibration:
             dict(d.get("board") or {}),
             dict(d.get("quality") or {}),
             d.get("depth_correction"),
+            robot_correction_from_dict(d.get("robot"), where),
         )
     except (TypeError, ValueError) as e:
         raise ScannerError(f"{where}: malformed matrix ({e})") from None

@@ -154,11 +154,11 @@ class HeldOutError:
     and the RMS of each view (px, in the order of the views used)."""
 
     rms_px: float
-    rms_mm: float
+    rms_m: float
     per_view_px: tuple[float, ...]
 
     def as_dict(self) -> dict:
-        return {"rms_px": self.rms_px, "rms_mm": 1e3 * self.rms_mm}
+        return {"rms_px": self.rms_px, "rms_mm": 1e3 * self.rms_m}
 
 
 def view_errors(

@@ -43,18 +43,19 @@ from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera
 class ArmModel:
     """An arm's kinematics with error parameters p: flange_pose(q, p) is the flange pose X_WF
     for the reported joints q. p[:6] are the joints' zero offsets (rad; true = reported +
-    offset), p[6:] corrections of the links named in `length_names` (m); p = 0 is the arm as
-    drawn, so flange_pose(q, 0) is what the controller reports."""
+    offset), p[6:] corrections of the links `length_keys` (m; their words `length_words`);
+    p = 0 is the arm as drawn, so flange_pose(q, 0) is what the controller reports."""
 
     flange_pose: Callable[[np.ndarray, np.ndarray], np.ndarray]
-    length_names: tuple[str, ...] = ()
+    length_keys: tuple[str, ...] = ()
+    length_words: tuple[str, ...] = ()
 
     @property
     def size(self) -> int:
-        return 6 + len(self.length_names)
+        return 6 + len(self.length_keys)
 
     def name(self, k: int) -> str:
-        return f"joint {k + 1} zero" if k < 6 else f"{self.length_names[k - 6]} length"
+        return f"joint {k + 1} zero" if k < 6 else f"{self.length_words[k - 6]} length"
 
     def words(self, k: int, value: float, sigma: float) -> str:
         if k < 6:
@@ -149,10 +150,20 @@ class RobotErrors:
     kept: bool
     note: str
     names: tuple[str, ...] = ()
+    length_keys: tuple[str, ...] = ()
 
     @property
     def joint_offsets_rad(self) -> np.ndarray:
         return self.params[:6]
+
+    @property
+    def link_length_corrections_m(self) -> dict[str, float]:
+        """The estimated length corrections by the arm model's keys (only those estimated)."""
+        return {
+            key: float(self.params[6 + i])
+            for i, key in enumerate(self.length_keys)
+            if 6 + i in self.estimated
+        }
 
     def as_dict(self) -> dict:
         def name(k: int) -> str:
@@ -162,9 +173,7 @@ class RobotErrors:
             "estimated": [name(k) for k in self.estimated],
             "kept": self.kept,
             "joint_offsets_rad": self.params[:6].tolist(),
-            "link_length_corrections_m": {
-                name(6 + i): float(v) for i, v in enumerate(self.params[6:])
-            },
+            "link_length_corrections_m": self.link_length_corrections_m,
             "sigma": {
                 name(k): float(self.sigma[k]) for k in self.estimated if np.isfinite(self.sigma[k])
             },
@@ -237,7 +246,9 @@ def estimate(
             arm.size,
             hidden,
         )
-        return refined, RobotErrors(**{**outcome.__dict__, "names": names})
+        return refined, RobotErrors(
+            **{**outcome.__dict__, "names": names, "length_keys": arm.length_keys}
+        )
     joints = np.array([o.q_rad for o in inliers], float)
     zero = np.zeros(arm.size)
     with_arm = refine_on_board(
@@ -285,6 +296,7 @@ def estimate(
         kept,
         "",
         names,
+        arm.length_keys,
     )
     outcome = RobotErrors(**{**outcome.__dict__, "note": _note(arm, outcome, values)})
     return (with_arm if kept else refined), outcome

@@ -34,9 +34,11 @@ class CalibrationSettings:
     held_out_folds: views are held out in this many folds to measure prediction on views the
         fit did not see (leave-one-out below 6 views).
     bootstrap_samples: refits on views drawn with replacement for X_FC's uncertainty.
-    offset_min_independence: `--robot-offsets` estimates a joint's zero offset only when the
-        image change it makes is at least this independent (sine of the angle) of what X_FC
-        and the board pose can do.
+    robot_offsets: also estimate the arm's own errors (joint zero offsets, link lengths) where
+        the poses make them observable, kept only when they predict held-out views better.
+    offset_min_independence: such a parameter is estimated only when the image change it makes
+        is at least this independent (sine of the angle) of what X_FC, the board pose and the
+        other parameters can do.
     max_reprojection_rms_px, max_board_scatter_m, max_hand_eye_translation_m: a calibration
         beyond any of these is refused as physically implausible (a wrong pose convention
         gives hundreds of px, tens of cm of board scatter and metres of X_FC; real sets of
@@ -59,6 +61,7 @@ class CalibrationSettings:
     fix_k3: bool = False
     held_out_folds: int = 5
     bootstrap_samples: int = 200
+    robot_offsets: bool = False
     offset_min_independence: float = 0.05
     max_reprojection_rms_px: float = 10.0
     max_board_scatter_m: float = 0.02

@@ -48,21 +48,31 @@ BANDS = {
         0.5,
         2.0,
     ),
+    "held_out_mm": Figure(
+        "held-out prediction",
+        "mm",
+        "board corners of each view predicted from its reported robot pose by a fit on the "
+        "other views (k-fold), on the board: what a scan's uncorrected poses will see, the "
+        "robot's own errors included (a scan's registration corrects ~1 mm)",
+        0.3,
+        1.0,
+    ),
     "X_FC_sigma_mm": Figure(
         "X_FC translation sigma (largest axis)",
         "mm",
-        "1-sigma uncertainty of the hand-eye translation from the refinement's covariance "
-        "(a scan's registration corrects ~1 mm)",
-        0.1,
-        0.5,
+        "1-sigma uncertainty of the hand-eye translation: the larger of the refinement's "
+        "covariance and the bootstrap over views, with the robot's stated accuracy that no "
+        "hand-eye data can separate from X_FC (solver.robot_translation_sigma_m)",
+        0.3,
+        1.0,
     ),
     "X_FC_sigma_deg": Figure(
         "X_FC rotation sigma (largest axis)",
         "deg",
-        "1-sigma uncertainty of the hand-eye rotation, including the last joint's zero offset "
-        "that no hand-eye data can separate from X_FC",
-        0.03,
-        0.1,
+        "1-sigma uncertainty of the hand-eye rotation, as the translation's, with the robot's "
+        "stated rotation accuracy (the last joint's zero among it)",
+        0.05,
+        0.2,
     ),
 }
 

@@ -217,7 +217,9 @@ def _store_observations(
         size = (capture.left.shape[1], capture.left.shape[0])
         left, why = _detect(board, capture.left, settings)
         right = None if capture.right is None else _detect(board, capture.right, settings)[0]
-        observations.append(PoseObservation(f"{index:04d}", capture.X_WF, left, right, why))
+        observations.append(
+            PoseObservation(f"{index:04d}", capture.X_WF, left, right, why, capture.q_rad)
+        )
     return observations, size
 
 
@@ -283,13 +285,13 @@ def _folder_images(root: Path) -> ImageLoader:
     return load
 
 
-def _truth_of(root: Path) -> tuple[np.ndarray, StereoCamera] | None:
+def _truth_of(root: Path) -> tuple[np.ndarray, StereoCamera, np.ndarray] | None:
     path = root / "truth.yaml"
     if not path.is_file():
         return None
 
     truth, _ = load_truth(path)
-    return truth.X_FC, truth.stereo
+    return truth.X_FC, truth.stereo, truth.joint_offsets_rad
 
 
 def _with_depth_correction(

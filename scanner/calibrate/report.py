@@ -11,6 +11,7 @@ import numpy as np
 
 from reconstruction.calibration.camera_quality import epipolar_error
 from reconstruction.calibration.file import save_calibration
+from reconstruction.calibration.held_out import MIN_VIEWS_FOR_K_FOLD
 from reconstruction.common.transforms import matrix_to_rotvec
 from reconstruction.evaluation.metrics import handeye_error
 from reconstruction.stereo.camera_model import StereoCamera
@@ -25,10 +26,23 @@ from scanner.scan_dir.results_folder import staged_folder
 CALIBRATION_FILE = "calibration.yaml"
 
 
-def truth_errors(solution: Solution, truth_X_FC: np.ndarray, truth_stereo: StereoCamera) -> dict:
-    """Errors against the simulator's truth: ours and each OpenCV method alone."""
+def truth_errors(
+    solution: Solution,
+    truth_X_FC: np.ndarray,
+    truth_stereo: StereoCamera,
+    truth_joint_offsets_rad: np.ndarray | None = None,
+) -> dict:
+    """Errors against the simulator's truth: ours and each OpenCV method alone; with the true
+    joint offsets, the error of each estimated one."""
     he = solution.hand_eye
     out = {**handeye_error(he.X_FC, truth_X_FC), "opencv": {}}
+    errors = he.robot_errors
+    if truth_joint_offsets_rad is not None and errors is not None and errors.estimated:
+        out["joint_offset_errors_deg"] = {
+            f"joint {k + 1}": deg(errors.params[k] - truth_joint_offsets_rad[k])
+            for k in errors.estimated
+            if k < 6
+        }
     # |error| / sigma per axis (rotation x y z, translation x y z in C): the sigma's honesty.
     out["X_FC_sigma_ratios"] = [
         float(v) for v in error_in_sigmas(he.X_FC, he.X_FC_sigma, truth_X_FC)
@@ -99,10 +113,80 @@ def build_report(solution: Solution, truth: dict | None, extra: dict | None = No
         found = [o for o in solution.observations if o.left is not None and o.right is not None]
         if found:
             report["epipolar_median_px"] = epipolar_error(stereo, found).median_px
+    report.update(quality_report(he))
     if truth is not None:
         report["truth"] = truth
     report.update(extra or {})
     return report
+
+
+def quality_report(he) -> dict:
+    """The report keys of the held-out prediction, the sigma's sources and the robot errors."""
+    out: dict = {}
+    q = he.quality
+    if q is not None:
+        loo = q.folds.leave_one_out and len(q.folds.groups) < MIN_VIEWS_FOR_K_FOLD
+        out["held_out"] = {
+            "folds": q.folds.words(),
+            "rms_px": q.held_out.rms_px,
+            "rms_mm": mm(q.held_out.rms_m),
+            "methods": {name: e.as_dict() for name, e in q.held_out_methods.items()},
+            "best_method": q.best_method,
+            "disagreement_sigmas": q.disagreement_sigmas,
+            "methods_note": q.note,
+            "leave_one_out_note": (
+                f"only {len(q.folds.groups)} views used: held out one at a time (leave-one-out) "
+                f"instead of k folds, which need at least {MIN_VIEWS_FOR_K_FOLD}"
+                if loo
+                else ""
+            ),
+        }
+        # The judged figure (scanner.calibrate.judge): what a scan's uncorrected pose predicts.
+        out["held_out_mm"] = mm(q.held_out.rms_m)
+        cov, boot = he.X_FC_covariance_sigma, q.bootstrap_sigma
+        out["X_FC_sigma_covariance"] = x_fc_sigma_record(cov)
+        out["X_FC_sigma_bootstrap"] = x_fc_sigma_record(boot)
+        out["X_FC_sigma_sources"] = {
+            "reported_mm": mm(np.max(he.X_FC_sigma[3:])),
+            "reported_deg": deg(np.max(he.X_FC_sigma[:3])),
+            "covariance_mm": mm(np.max(cov[3:])),
+            "bootstrap_mm": mm(np.max(boot[3:])),
+            "bootstrap_samples": q.bootstrap_samples,
+        }
+    if he.robot_errors is not None:
+        out["robot_errors"] = he.robot_errors.as_dict()
+    return out
+
+
+def quality_lines(report: dict) -> list[str]:
+    """Held-out prediction, the methods' agreement, X_FC's uncertainty and the robot errors'
+    outcome, as `scanner calibrate` prints them."""
+    lines = []
+    h = report.get("held_out")
+    if h:
+        methods = ", ".join(
+            f"{name} {m['rms_px']:.3f} px"
+            for name, m in sorted(h["methods"].items(), key=lambda item: item[1]["rms_px"])
+        )
+        lines.append(
+            f"held-out prediction ({h['folds']}): {h['rms_px']:.3f} px, {h['rms_mm']:.3f} mm on "
+            f"the board; closed-form methods: {methods}"
+        )
+        if h.get("leave_one_out_note"):
+            lines.append(h["leave_one_out_note"])
+        if h.get("methods_note"):
+            lines.append(f"note: {h['methods_note']}")
+    s = report.get("X_FC_sigma_sources")
+    if s:
+        lines.append(
+            f"X_FC 1-sigma: {s['reported_mm']:.3f} mm / {s['reported_deg']:.4f} deg (largest "
+            f"axis; covariance {s['covariance_mm']:.3f} mm, bootstrap over views "
+            f"{s['bootstrap_mm']:.3f} mm)"
+        )
+    robot = report.get("robot_errors")
+    if robot:
+        lines.append(robot["note"])
+    return lines
 
 
 def report_text(report: dict) -> str:
@@ -158,6 +242,7 @@ def report_text(report: dict) -> str:
             f"({', '.join(f'{deg(v):.4f}' for v in sigma['rotation_rad'])}) deg about x y z, "
             f"translation ({', '.join(f'{mm(v):.3f}' for v in sigma['translation_m'])}) mm"
         )
+    lines += quality_lines(report)
     corners = report.get("corner_pictures")
     if corners:
         lines.append(

@@ -13,7 +13,7 @@ from reconstruction.calibration.eye_in_hand import (
     calibrate_hand_eye,
     require_poses,
 )
-from reconstruction.calibration.file import Calibration
+from reconstruction.calibration.file import Calibration, RobotCorrection
 from reconstruction.calibration.intrinsics import (
     StereoCalibration,
     calibrate_camera,
@@ -110,7 +110,14 @@ def solve(
                 f"the intrinsics are for {size.width}x{size.height} images, the images are "
                 f"{image_size[0]}x{image_size[1]}"
             )
-    hand_eye = calibrate_hand_eye(board, observations, cameras, settings)
+    arm = None
+    if settings.robot_offsets:
+        from planners.ik import arm_model
+
+        arm = arm_model()
+    hand_eye = calibrate_hand_eye(
+        board, observations, cameras, settings, arm=arm, robot_offsets=settings.robot_offsets
+    )
     quality = {
         "reprojection_rms_px": hand_eye.rms_px,
         "reprojection_rms_after_robot_corrections_px": hand_eye.corrected_rms_px,
@@ -122,6 +129,13 @@ def solve(
         "hand_eye_seed": hand_eye.seed_method,
         "X_FC_sigma": x_fc_sigma_record(hand_eye.X_FC_sigma),
     }
+    if hand_eye.quality is not None:
+        quality["held_out_rms_px"] = hand_eye.quality.held_out.rms_px
+        quality["held_out_rms_m"] = hand_eye.quality.held_out.rms_m
+    robot = None
+    if hand_eye.robot_errors is not None and hand_eye.robot_errors.kept:
+        e = hand_eye.robot_errors
+        robot = RobotCorrection(tuple(e.joint_offsets_rad), e.link_length_corrections_m)
     calibration = Calibration(
         hand_eye.X_FC,
         cameras if isinstance(cameras, StereoCamera) else None,
@@ -131,6 +145,7 @@ def solve(
         hand_eye.X_WB,
         to_dict(board),
         quality,
+        robot=robot,
     )
     return Solution(
         calibration,

@@ -20,7 +20,7 @@ from scanner.calibrate.offline import (
     calibrate_directory,
     cameras_only_images,
 )
-from scanner.calibrate.report import error_text
+from scanner.calibrate.report import error_text, quality_lines
 from scanner.configs.flags import for_flag
 from scanner.reconstruct.progress import ProgressBar
 from scanner.scan_dir.results_folder import require_replaceable
@@ -119,6 +119,12 @@ def _config(args: argparse.Namespace) -> CalibrateConfig:
     board = board_from_args(args, config.board)
     if board is not config.board:
         config = replace(config, board=board)
+    if args.robot_offsets:
+        if args.eye_to_hand:
+            raise ScannerError(
+                "--robot-offsets applies to eye-in-hand calibrations, not --eye-to-hand"
+            )
+        config = replace(config, solver=replace(config.solver, robot_offsets=True))
     e2h = config.eye_to_hand
     if args.held_out is not None:
         e2h = for_flag("--held-out", lambda: replace(e2h, held_out=args.held_out))
@@ -160,6 +166,8 @@ def _print_summary(report: dict, results_dir: Path, calibration_file: Path) -> N
         f"hand-eye RMS reprojection: {report['reprojection_rms_px']:.3f} px; "
         f"board-in-base scatter {scatter:.2f} mm (largest axis std)"
     )
+    for line in quality_lines(report):
+        print(line)
     truth = report.get("truth")
     if truth:
         print(f"error against the simulator's truth: {error_text(truth)}")

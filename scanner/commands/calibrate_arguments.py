@@ -83,6 +83,14 @@ def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
         "(default %(config_default)s)",
         config=ConfigDefault(CALIBRATE_CONFIG, "sensor"),
     )
+    calibrate.add_argument(
+        "--robot-offsets",
+        action="store_true",
+        help="also estimate the arm's own errors with X_FC: the joints' zero offsets and the "
+        "link lengths the poses make observable (needs recorded joint angles: live runs and "
+        "their capture folders); kept, written to the calibration file and used by scans only "
+        "when they predict held-out views better (default: off)",
+    )
     add_driver_argument(
         calibrate, "eye-in-hand", "; the board stands where the configuration's placement says"
     )

@@ -110,7 +110,8 @@ def capture_view(
         )
     centre = np.array(scan.config.scan_center_m, float)
     radius = keep_out_radius_m(scan.config.cell)
-    X_WC = capture.X_WF @ X_FC
+    X_WF = scan.X_WF(capture)
+    X_WC = X_WF @ X_FC
     if rgbd:
         if capture.depth_scale_m != sensor.depth_scale_m:
             raise ScannerError(
@@ -118,7 +119,7 @@ def capture_view(
                 f"{sensor.depth_scale_m} m"
             )
         cloud = view_rgbd_cloud(sensor, capture.depth, capture.left, X_WC, centre, radius)
-        view = ViewCloud(index, cloud.points_C, cloud.colors, capture.X_WF, cloud.depth)
+        view = ViewCloud(index, cloud.points_C, cloud.colors, X_WF, cloud.depth)
         return view, capture.q_rad
     if capture.left.shape[1::-1] != sensor.image_size:
         raise ScannerError(
@@ -126,7 +127,7 @@ def capture_view(
         )
     cloud = view_cloud(sensor, capture.left, capture.right, X_WC, centre, radius, params)
     depth = depth_image(sensor, cloud)
-    return ViewCloud(index, cloud.points_C, cloud.colors, capture.X_WF, depth), capture.q_rad
+    return ViewCloud(index, cloud.points_C, cloud.colors, X_WF, depth), capture.q_rad
 
 
 def load_truth_of(scan_dir: Path):

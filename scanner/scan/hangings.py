@@ -13,7 +13,6 @@ import numpy as np
 from planners.tour import Tour, plan_tour
 from reconstruction.common.errors import StorageError
 from robots.drivers.staubli_val3 import RobotStoppedError
-from robots.models.kinematics import Kinematics
 from robots.simulation.truth import record_hung_pose
 from scanner.configs.scan import ScanConfig
 from scanner.monitor.cell_monitor import MonitorStoppedError
@@ -26,7 +25,7 @@ from scanner.scan.decision import DecisionMaker, FixedViewList, RunSummary
 from scanner.scan.next_best_view import CoverageModel
 from scanner.scan.next_hanging import instruction, next_best_hanging
 from scanner.scan.viewpoints import planned_view
-from scanner.scan.world import ScanWorld, WatchedRobot, live_cloud
+from scanner.scan.world import ScanWorld, WatchedRobot, live_cloud, software_kinematics
 from scanner.scan_dir.captures import CaptureStore
 from scanner.scan_dir.manifest import open_scan, views_to_manifest
 from scanner.scan_dir.views import PlannedView
@@ -58,7 +57,7 @@ def _decision_maker(
         store,
         FixedViewList(ordered, preferred),
         len(views),
-        Kinematics().X_WF,
+        software_kinematics(config),
         config.machine,
         process=with_stream(
             live_cloud(live, config, world.camera_model, world.X_FC) if live else None, stream

@@ -8,6 +8,7 @@ writes it atomically.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -98,6 +99,13 @@ class SavedScan:
     views: tuple[PlannedView, ...]
     hangings: tuple[tuple[int, ...], ...]  # the view indices of each pass
     hanging: int  # the pass the object hangs for now (the last one started)
+    # X_WF(q) to use instead of the flange poses stored with the captures (a reconstruction
+    # with a calibration that corrects the robot's own errors); None: the stored ones.
+    flange_pose: Callable[[np.ndarray], np.ndarray] | None = None
+
+    def X_WF(self, capture) -> np.ndarray:
+        """The flange pose of a capture this scan's reconstruction uses."""
+        return capture.X_WF if self.flange_pose is None else self.flange_pose(capture.q_rad)
 
     @property
     def root(self) -> Path:
