@@ -1,5 +1,6 @@
 """`scanner calibrate --offline`: the real Open3DV circle-grid set, bad input, CLI exit codes."""
 
+import json
 import math
 import shutil
 import subprocess
@@ -239,3 +240,69 @@ def test_planned_mover_executes_or_reports_the_failure():
     mover = PlannedMover(planner("trajectory", lambda t, m: refused), robot)
     assert not mover(np.ones(6)) and "joint-linear path" in mover.last_failure
     assert executed == ["trajectory as joint_linear"]
+
+
+def test_real_data_reports_held_out_prediction_for_every_method(tmp_path):
+    """The 8 real poses: held-out prediction (5-fold) of the chosen X_FC and of each of
+    OpenCV's methods, printed and in the report; --robot-offsets on poses without joint
+    angles says why nothing was estimated and calibrates without them (not a failure)."""
+    root = shared_data(REAL)
+    r = _run(
+        "--offline",
+        str(root),
+        *BOARD_ARGS,
+        "--pose-convention",
+        "open3dv",
+        "--intrinsics",
+        str(root / "param.txt"),
+        "--robot-offsets",
+        "--out",
+        str(tmp_path),
+    )
+    assert r.returncode == 0, r.stderr
+    report = json.loads((tmp_path / "results" / "report.json").read_text())
+    held = report["held_out"]
+    assert held["folds"] == "5-fold"
+    assert set(held["methods"]) == {"tsai", "park", "horaud", "andreff", "daniilidis"}
+    # Robot errors of about a millimetre dominate this set: held-out is px, not tenths.
+    assert 0.5 < held["rms_px"] < 5 and report["held_out_mm"] == pytest.approx(held["rms_mm"])
+    line = next(x for x in r.stdout.splitlines() if x.startswith("held-out prediction (5-fold)"))
+    assert all(name in line for name in held["methods"])
+    assert "robot errors not estimated: the poses carry no joint angles" in r.stdout
+    assert report["robot_errors"]["kept"] is False
+    assert load_calibration(tmp_path / "results" / "calibration.yaml").robot is None
+    sources = report["X_FC_sigma_sources"]
+    assert sources["reported_mm"] >= max(sources["covariance_mm"], sources["bootstrap_mm"])
+
+
+def test_fewer_than_six_views_are_held_out_one_at_a_time(tmp_path):
+    root = shared_data(REAL)
+    data = tmp_path / "five"
+    data.mkdir()
+    for k in range(5):
+        for suffix in (".bmp", ".txt"):
+            shutil.copy(root / f"pos{k}{suffix}", data / f"pos{k}{suffix}")
+    r = _run(
+        "--offline",
+        str(data),
+        *BOARD_ARGS,
+        "--pose-convention",
+        "open3dv",
+        "--intrinsics",
+        str(root / "param.txt"),
+        "--out",
+        str(tmp_path / "out"),
+    )
+    assert r.returncode == 0, r.stderr
+    report = json.loads((tmp_path / "out" / "results" / "report.json").read_text())
+    assert report["held_out"]["folds"] == "leave-one-out over 5 views"
+    assert "held out one at a time (leave-one-out)" in r.stdout
+
+
+def test_robot_offsets_do_not_apply_to_eye_to_hand(tmp_path):
+    r = _run("--eye-to-hand", "--robot-offsets", "--out", str(tmp_path))
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines()[-1].endswith(
+        "--robot-offsets applies to eye-in-hand calibrations, not --eye-to-hand"
+    )
+    assert "Traceback" not in r.stderr

@@ -83,20 +83,19 @@ class RobotCorrection:
         }
 
 
-def robot_correction_from_dict(d, where: str) -> RobotCorrection | None:
+def robot_correction_from_dict(d) -> RobotCorrection | None:
+    """The file's `robot:` record (None: none); errors name the field, the caller the file."""
     if d is None:
         return None
     if not isinstance(d, dict):
-        raise ScannerError(f"{where}: robot: expected a mapping with joint_offsets_rad")
+        raise ScannerError("robot: expected a mapping with joint_offsets_rad")
     try:
         return RobotCorrection(
             tuple(d.get("joint_offsets_rad", (0.0,) * 6)),
             dict(d.get("link_length_corrections_m") or {}),
         )
     except (TypeError, ValueError) as e:
-        raise ScannerError(f"{where}: robot: malformed ({e})") from None
-    except ScannerError as e:
-        raise ScannerError(f"{where}: {e}") from None
+        raise ScannerError(f"robot: malformed ({e})") from None
 
 
 @dataclass(frozen=True, eq=False)
@@ -231,7 +230,7 @@ def calibration_from_dict(d: dict, where: str = "calibration") -> Calibration:
             dict(d.get("board") or {}),
             dict(d.get("quality") or {}),
             d.get("depth_correction"),
-            robot_correction_from_dict(d.get("robot"), where),
+            robot_correction_from_dict(d.get("robot")),
         )
     except (TypeError, ValueError) as e:
         raise ScannerError(f"{where}: malformed matrix ({e})") from None

@@ -27,6 +27,9 @@ class CalibrationSettings:
         and circle detectors reach ~0.02 px at best).
     robot_translation_sigma_m, robot_rotation_sigma_rad: accuracy of the reported flange poses
         (0 and 0: trust them exactly). Defaults: a calibrated 6-axis arm of the RX60's class.
+    min_robot_translation_sigma_m, min_robot_rotation_sigma_rad: the arm's repeatability (the
+        RX60: +-0.02 mm): what is left of a pose's error once its systematic errors are
+        modelled (--robot-offsets) is never taken smaller.
     robust_loss, robust_scale: scipy least_squares loss and its scale in sigmas.
     outlier_factor, outlier_min_px: a pose is an outlier when its RMS reprojection error exceeds
         both factor x the median pose RMS and min_px.
@@ -54,6 +57,8 @@ class CalibrationSettings:
     min_pixel_sigma_px: float = 0.01
     robot_translation_sigma_m: float = 0.0002
     robot_rotation_sigma_rad: float = math.radians(0.02)
+    min_robot_translation_sigma_m: float = 1e-5
+    min_robot_rotation_sigma_rad: float = math.radians(0.001)
     robust_loss: str = "soft_l1"
     robust_scale: float = 3.0
     outlier_factor: float = 4.0
@@ -89,5 +94,7 @@ class CalibrationSettings:
                 "max_board_scatter_m",
                 "max_hand_eye_translation_m",
                 "offset_min_independence",
+                "min_robot_translation_sigma_m",
+                "min_robot_rotation_sigma_rad",
             ),
         )

@@ -26,3 +26,11 @@ class Kinematics:
 
     def X_WC(self, q: np.ndarray, X_FC: np.ndarray) -> np.ndarray:
         return self.X_WF(q) @ X_FC
+
+
+def corrected_kinematics(joint_offsets_rad, link_length_corrections_m: dict[str, float]):
+    """X_WF(q) of the RX60 with a calibration's joint zero offsets (true = reported + offset)
+    and link length corrections ({RX60 field: metres}) applied to the reported joints q."""
+    kinematics = Kinematics(RX60().with_length_corrections(link_length_corrections_m))
+    offsets = np.array(joint_offsets_rad, float)
+    return lambda q: kinematics.X_WF(np.asarray(q, float) + offsets)

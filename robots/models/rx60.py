@@ -27,10 +27,10 @@ ACCELERATION_TIME_S = 0.3
 # The RX60's link lengths a kinematic calibration may correct, and their words.
 LINK_LENGTHS = {
     "shoulder_height_m": "shoulder height",
-    "upper_arm_m": "upper arm",
+    "upper_arm_m": "upper arm length",
     "elbow_offset_m": "elbow offset",
-    "forearm_m": "forearm",
-    "wrist_to_flange_m": "wrist to flange",
+    "forearm_m": "forearm length",
+    "wrist_to_flange_m": "wrist-to-flange length",
 }
 
 

@@ -68,9 +68,15 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
             stereo = calibrated_model(scan.camera_model, calibration, str(options.calibration))
         if calibration.robot is not None:
             # X_FC was estimated with the arm's own errors: the poses must carry them too.
-            from scanner.scan.world import corrected_kinematics
+            from robots.models.kinematics import corrected_kinematics
 
-            scan = replace(scan, flange_pose=corrected_kinematics(calibration.robot))
+            robot = calibration.robot
+            scan = replace(
+                scan,
+                flange_pose=corrected_kinematics(
+                    robot.joint_offsets_rad, robot.link_length_corrections_m
+                ),
+            )
     out = options.out or free_reconstruction_dir(scan_dir)
     if options.out is not None:
         require_replaceable(options.out, RECONSTRUCTION_MARKER, options.force, "reconstruction")

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from planners.planner import Planner
-from reconstruction.calibration.file import RobotCorrection, calibrated_model, load_calibration
+from reconstruction.calibration.file import calibrated_model, load_calibration
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import transform_points
 from reconstruction.depth.camera_model import CameraModel, RgbdCamera
@@ -91,24 +91,14 @@ def software_kinematics(config: ScanConfig):
     RX60 as drawn, or as the calibration file's robot correction found it (joint zero offsets,
     link lengths; `scanner calibrate --robot-offsets`), so that every capture's pose carries
     the arm's own errors as the calibration measured them."""
-    from robots.models.kinematics import Kinematics
+    from robots.models.kinematics import Kinematics, corrected_kinematics
 
     correction = None
     if config.calibration_file:
         correction = load_calibration(Path(config.calibration_file)).robot
     if correction is None:
         return Kinematics().X_WF
-    return corrected_kinematics(correction)
-
-
-def corrected_kinematics(correction: RobotCorrection):
-    """X_WF(q) of the RX60 with a calibration's joint zero offsets and link lengths."""
-    from robots.models.kinematics import Kinematics
-    from robots.models.rx60 import RX60
-
-    kinematics = Kinematics(RX60().with_length_corrections(correction.link_length_corrections_m))
-    offsets = np.array(correction.joint_offsets_rad, float)
-    return lambda q: kinematics.X_WF(np.asarray(q, float) + offsets)
+    return corrected_kinematics(correction.joint_offsets_rad, correction.link_length_corrections_m)
 
 
 def software_camera(config: ScanConfig) -> tuple[CameraModel, np.ndarray]:
