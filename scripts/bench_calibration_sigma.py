@@ -58,7 +58,7 @@ def _sigma_and_offsets(seeds: int, kinematic_error_m, solver) -> dict:
     config = CalibrateConfig()
     stereo = config.camera.stereo_camera()
     arm = arm_model()
-    ratios, errors, boot, reported = [], [], [], []
+    ratios, errors, boot, reported, common = [], [], [], [], []
     offset_errors, without_mm, with_mm, held_without, held_with, kept = [], [], [], [], [], 0
     for observations, X_FC_true, offsets_true in render_free_observations(
         config, range(seeds), kinematic_error_m
@@ -67,6 +67,7 @@ def _sigma_and_offsets(seeds: int, kinematic_error_m, solver) -> dict:
         ratios.append(error_in_sigmas(he.X_FC, he.X_FC_sigma, X_FC_true))
         errors.append(pose_to_twist(invert(he.X_FC) @ X_FC_true))
         boot.append(he.quality.bootstrap_sigma)
+        common.append(he.quality.common_sigma)
         reported.append(he.X_FC_sigma)
         ho = calibrate_hand_eye(
             config.board, observations, stereo, solver, arm=arm, robot_offsets=True
@@ -82,6 +83,7 @@ def _sigma_and_offsets(seeds: int, kinematic_error_m, solver) -> dict:
         kept += e.kept
     observed = np.sqrt(np.mean(np.square(errors), axis=0))
     boot, reported = np.mean(boot, axis=0), np.mean(reported, axis=0)
+    common = np.mean(common, axis=0)
     summary = summarise(ratios)
     worst_offset = max(float(np.max(v)) if len(v) else 0.0 for v in offset_errors)
     return {
@@ -90,6 +92,7 @@ def _sigma_and_offsets(seeds: int, kinematic_error_m, solver) -> dict:
             "observed_rms_error": _axes(observed),
             "mean_bootstrap_sigma": _axes(boot),
             "mean_reported_sigma": _axes(reported),
+            "mean_common_robot_sigma": _axes(common),
             "bootstrap_over_observed": [round(float(v), 3) for v in boot / observed],
             "reported_over_observed": [round(float(v), 3) for v in reported / observed],
         },

@@ -100,7 +100,8 @@ class HandEyeCalibration:
         """(6,) standard deviations: rotation (rad) about C's x y z, translation (m) along them;
         per axis the larger of the covariance's and the bootstrap's (`quality.combined_sigma`)."""
         if self.quality is not None:
-            return combined_sigma(self.X_FC_covariance, self.quality.bootstrap_sigma)
+            q = self.quality
+            return combined_sigma(self.X_FC_covariance, q.bootstrap_sigma, q.common_sigma)
         return np.sqrt(np.clip(np.diag(self.X_FC_covariance), 0.0, None))
 
     @property

@@ -34,7 +34,8 @@ class CalibrationQuality:
     """folds: how views were held out; held_out: the chosen X_FC's prediction of held-out views;
     held_out_methods: each OpenCV method's, refitted per fold; bootstrap_sigma: (6,) standard
     deviations of X_FC (rotation rad about C's axes, translation m along them) over refits on
-    resampled views, with the last joint's zero uncertainty added as in the covariance;
+    resampled views; common_sigma: (6,) what the robot's stated accuracy leaves in X_FC (an
+    error the same in every pose, which no resampling of the views can see);
     disagreement: per method, its X_FC's difference from the chosen one in units of the
     combined sigma (largest axis); note: what the disagreement means, empty when none."""
 
@@ -42,6 +43,7 @@ class CalibrationQuality:
     held_out: HeldOutError
     held_out_methods: dict[str, HeldOutError]
     bootstrap_sigma: np.ndarray
+    common_sigma: np.ndarray
     bootstrap_samples: int
     disagreement_sigmas: dict[str, float]
     note: str
@@ -53,12 +55,16 @@ class CalibrationQuality:
         return min(self.held_out_methods, key=lambda k: self.held_out_methods[k].rms_px)
 
 
-def combined_sigma(covariance: np.ndarray, bootstrap_sigma: np.ndarray) -> np.ndarray:
-    """Per axis the larger of the covariance's and the bootstrap's standard deviation: the
-    covariance sees the image noise and the robot prior, the bootstrap the view-to-view
-    differences the robot's real errors make; neither alone is honest on a real arm."""
+def combined_sigma(
+    covariance: np.ndarray, bootstrap_sigma: np.ndarray, common_sigma: np.ndarray
+) -> np.ndarray:
+    """Per axis the larger of the covariance's standard deviation (which holds the robot's
+    common error already, `eye_in_hand.hand_eye_covariance`) and the bootstrap's with the
+    common error added: the covariance sees the image noise and the robot prior, the bootstrap
+    the view-to-view differences the robot's real errors make; neither alone is honest on a
+    real arm."""
     cov = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    return np.fmax(cov, bootstrap_sigma)
+    return np.fmax(cov, np.hypot(bootstrap_sigma, common_sigma))
 
 
 def assess(
@@ -84,14 +90,15 @@ def assess(
     )
     methods = held_out_closed_form(board, inliers, cameras, X_CB, folds)
     twists = bootstrap_twists(refined.linearization, solution, joints, samples)
-    boot = np.sqrt(twists.var(axis=0) + unobservable_variance)
-    sigma = combined_sigma(covariance, boot)
+    boot = twists.std(axis=0)
+    common = np.sqrt(np.clip(unobservable_variance, 0.0, None))
+    sigma = combined_sigma(covariance, boot, common)
     distance = {
         name: float(np.max(np.abs(pose_to_twist(invert(refined.X_FC) @ X)) / sigma))
         for name, X in opencv.items()
     }
     return CalibrationQuality(
-        folds, held, methods, boot, samples, distance, _note(distance, held, methods)
+        folds, held, methods, boot, common, samples, distance, _note(distance, held, methods)
     )
 
 
