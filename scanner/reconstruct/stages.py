@@ -9,6 +9,7 @@ results folder (captures are never modified):
     evaluate    when truth.yaml is present: surface metrics and hand-eye error vs the truth
     write       fused_cloud.ply, mesh_*.ply (+ .obj/.stl on request), reconstruction.yaml,
                 plots; then report.json (merged with the scan's) and summary.md
+    (then)      model.html, the 3D page, once the results folder is in place
 """
 
 from __future__ import annotations
@@ -41,8 +42,10 @@ from scanner.reconstruct.evaluation import (
     to_first_hanging,
     truth_metrics,
 )
+from scanner.reconstruct.model_scene import reconstruction_scene, write_reconstruction_page
 from scanner.reconstruct.scan_views import gather_views, with_roi_centre
 from scanner.reconstruct.view_stream import StreamedViews, settings_key
+from scanner.reports.model_page import PAGE_NAME
 from scanner.scan_dir.captures import atomic_write_text
 from scanner.scan_dir.manifest import SavedScan, open_scan
 from scanner.scan_dir.results_folder import free_results_dir, holds_result, staged_folder
@@ -185,10 +188,24 @@ def run_reconstruct(
     processing = processing or scans[0].config.processing
     display = _stage_display(scans) if progress else None
     try:
-        return _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0, origin)
+        run, scene = _reconstruct(
+            scans, out, processing, X_FC, stereo, streamed, display, t0, origin
+        )
     finally:
         if display is not None:
             display.close()
+    # The model is complete and on disk before its 3D page is drawn: the page is a view of
+    # it, not part of it (a failure to write it is a warning).
+    seconds = write_reconstruction_page(out, scene)
+    if seconds is not None:
+        report = {**run.report, "model_page": PAGE_NAME, "model_page_s": seconds}
+        try:
+            _write_report(out, report)
+        except OSError as e:
+            log.warning("%s: the link to %s not added (%s)", out, PAGE_NAME, e)
+        else:
+            run = ReconstructRun(run.result, report, out)
+    return run
 
 
 def _stage_display(scans: list[SavedScan]):
@@ -197,9 +214,8 @@ def _stage_display(scans: list[SavedScan]):
     return StageProgress(sum(len(s.store.captured_indices()) for s in scans))
 
 
-def _reconstruct(
-    scans, out, processing, X_FC, stereo, streamed, display, t0, origin
-) -> ReconstructRun:
+def _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0, origin):
+    """The reconstruction written to `out`, and the builder of its page's scene."""
     first = scans[0]
     config = with_roi_centre(processing.reconstruction, np.array(first.config.scan_center_m))
     on_stage = display.on_stage if display else None
@@ -280,7 +296,12 @@ def _reconstruct(
         report["reconstruct_s"] = time.perf_counter() - t0
         merged = {**earlier, **report}
         _write_report(staging, merged)
-    return ReconstructRun(result, merged, out)
+
+    def scene():
+        model = stereo or first.camera_model
+        return reconstruction_scene(result, views, processing, first, model, truth, truth_samples)
+
+    return ReconstructRun(result, merged, out), scene
 
 
 def _streamed_for(streamed, scan: SavedScan, processing, X_FC, stereo) -> tuple[dict, dict]:
