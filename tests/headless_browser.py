@@ -140,8 +140,16 @@ class HeadlessChromium:
             raise BrowserError(f"{method}: {reply['error']}")
         return reply["result"]
 
-    def open(self, url: str) -> None:
+    def open(self, url: str, timeout_s: float = 60.0) -> None:
+        """Navigate and wait for the page's load event (its scripts have run)."""
+        with self._changed:
+            start = len(self.events)
         self.call("Page.navigate", session=self.session, url=url)
+        deadline = time.monotonic() + timeout_s
+        with self._changed:
+            while not any(e.get("method") == "Page.loadEventFired" for e in self.events[start:]):
+                if not self._changed.wait(max(0.0, deadline - time.monotonic())):
+                    raise BrowserError(f"{url}: not loaded in {timeout_s} s")
 
     def screenshot(self) -> np.ndarray:
         """The page as an (H, W, 3) uint8 RGB image."""

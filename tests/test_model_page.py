@@ -161,7 +161,7 @@ def test_a_page_that_fails_costs_a_warning_not_the_results(tmp_path, caplog):
 def test_the_scans_results_have_the_page(tiny_scan):
     """The tiny scan's results: model.html beside summary.md, linked from it, one frustum per
     view used, the deviation from the truth as colours."""
-    results = tiny_scan.root / "results"
+    results = tiny_scan.scan_dir / "results"
     page = results / PAGE_NAME
     assert page.is_file() and page.stat().st_size < MAX_PAGE_BYTES
     assert f"]({PAGE_NAME})" in (results / "summary.md").read_text()
@@ -188,7 +188,7 @@ def _run_view(args: list[str], capsys) -> tuple[int, str, str]:
 
 def test_view_finds_the_newest_page_of_a_scan(tiny_scan, tmp_path, capsys):
     scan = tmp_path / "scan"
-    shutil.copytree(tiny_scan.root, scan, ignore=shutil.ignore_patterns("captures"))
+    shutil.copytree(tiny_scan.scan_dir, scan, ignore=shutil.ignore_patterns("captures"))
     code, out, _ = _run_view([str(scan)], capsys)
     assert code == 0 and out.strip().endswith(str((scan / "results" / PAGE_NAME).resolve()))
     shutil.copytree(scan / "results", scan / "results-3")
@@ -200,7 +200,7 @@ def test_view_finds_the_newest_page_of_a_scan(tiny_scan, tmp_path, capsys):
 
 def test_view_refuses_what_has_no_page(tiny_scan, tmp_path, capsys):
     old = tmp_path / "scan"
-    shutil.copytree(tiny_scan.root, old, ignore=shutil.ignore_patterns("captures"))
+    shutil.copytree(tiny_scan.scan_dir, old, ignore=shutil.ignore_patterns("captures"))
     (old / "results" / PAGE_NAME).unlink()
     code, _, err = _run_view([str(old / "results")], capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1
