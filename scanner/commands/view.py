@@ -33,7 +33,8 @@ def add_view_parser(sub) -> None:
     view.add_argument(
         "--no-browser",
         action="store_true",
-        help="only print the page's path (default: open it in a browser when there is one)",
+        help="only print the page's path, do not open a browser (default: off: open it when "
+        "there is a graphical browser)",
     )
 
 

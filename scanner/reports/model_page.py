@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import html
 import logging
+import os
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -219,12 +220,17 @@ def page_html(scene: ModelScene, title: str) -> tuple[str, list[str], tuple]:
 
 
 def write_model_page(scene: ModelScene, path: Path, title: str = "scanner model") -> ModelPage:
-    """The scene as one self-contained HTML page at `path` (written whole or not at all)."""
-    from scanner.scan_dir.captures import atomic_write_text
-
+    """The scene as one self-contained HTML page at `path` (written whole or not at all:
+    a hidden file renamed when complete)."""
     text, layers, (p_WCamera, p_WTarget) = page_html(scene, title)
     path = Path(path)
-    atomic_write_text(path, text)
+    partial = path.with_name(f".{path.name}.tmp")
+    try:
+        partial.write_text(text)
+        os.replace(partial, path)
+    except OSError:
+        partial.unlink(missing_ok=True)
+        raise
     return ModelPage(
         path,
         path.stat().st_size,
