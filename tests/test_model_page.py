@@ -224,3 +224,54 @@ def test_latest_results_folder(tmp_path, names):
     (tmp_path / "results-11").mkdir()  # unfinished: no marker
     assert latest_results_dir(tmp_path, "marker") == tmp_path / "results-10"
     assert latest_results_dir(tmp_path / "results-11", "marker") is None
+
+
+def test_without_truth_the_colours_are_the_distance_to_the_data():
+    """A vertex 1 mm off the fused cloud gets the map's +1 mm colour (the scale's end)."""
+    from types import SimpleNamespace
+
+    from scanner.reconstruct.model_scene import _colour_values
+
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    result = SimpleNamespace(fused=SimpleNamespace(points_W=points))
+    vertices = np.array([[0.0, 0.0, 0.001], [1.0, 0.0, 0.0]])
+    values, meaning = _colour_values(vertices, result, None)
+    np.testing.assert_allclose(values, [0.001, 0.0], atol=1e-12)
+    assert "measured" in meaning
+    colours = mesh_colours(DisplayMesh(vertices, np.array([[0, 1, 1]]), values), 0.001)
+    np.testing.assert_allclose(colours[0], colour_map_rgb()[-1] / 255.0)
+
+
+def test_only_what_is_displayed_is_decimated():
+    import open3d as o3d
+
+    from scanner.reports.model_page_layers import decimated, thinned
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(0.1, resolution=60)
+    v, t = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
+    small_v, small_t = decimated(v, t, max_triangles=2_000)
+    assert len(small_t) <= 2_000 and len(small_v) < len(v)
+    radii = np.linalg.norm(small_v, axis=1)
+    assert np.abs(radii - 0.1).max() < 0.005  # still the sphere
+    same_v, same_t = decimated(v, t, max_triangles=len(t))
+    np.testing.assert_array_equal(same_v, v)
+    np.testing.assert_array_equal(same_t, t)
+    assert len(thinned(np.zeros((50, 3)), 10)) == 10 and len(thinned(np.zeros((5, 3)), 10)) == 5
+
+
+def test_view_opens_a_browser_in_a_graphical_session(tiny_scan, monkeypatch, capsys):
+    import webbrowser
+
+    opened = []
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setattr(webbrowser, "open", lambda url: opened.append(url) or True)
+    from scanner.commands.main import main
+
+    assert main(["view", str(tiny_scan.scan_dir)]) == 0
+    page = (tiny_scan.scan_dir / "results" / PAGE_NAME).resolve()
+    assert opened == [page.as_uri()]
+    assert capsys.readouterr().out.strip() == f"opened: {page}"
+    monkeypatch.delenv("DISPLAY")
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert main(["view", str(tiny_scan.scan_dir)]) == 0
+    assert len(opened) == 1 and capsys.readouterr().out.startswith("model page: ")

@@ -19,8 +19,9 @@ import json
 import logging
 import math
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +59,8 @@ class ReconstructRun:
     result: ReconstructionResult
     report: dict
     results_dir: Path
+    # Builds the scene of the results' 3D page (`add_model_page`); None once it is written.
+    page_scene: Callable[[], object] | None = None
 
 
 RECONSTRUCTION_MARKER = "reconstruction.yaml"
@@ -170,6 +173,7 @@ def run_reconstruct(
     streamed: StreamedViews | None = None,
     progress: bool = False,
     origin: dict[str, str] | None = None,
+    page: bool = True,
 ) -> ReconstructRun:
     """Reconstruct a saved scan (a directory, or one already opened), or merge a list of opened
     scans into one model: every hanging of every scan aligned into the first one's frame
@@ -178,7 +182,9 @@ def run_reconstruct(
     SCAN_DIR/results, written as a whole or not at all.
     `streamed`: per-view results computed while the scan ran (used where the settings match);
     `progress`: show the stages on stderr (when it is a terminal); `origin`: where the caller's
-    X_FC and processing came from, for the summary (`X_FC_given`, `processing_from`)."""
+    X_FC and processing came from, for the summary (`X_FC_given`, `processing_from`);
+    `page`: write the 3D page once the results are in place (else the caller does, with
+    `add_model_page`, e.g. after timing the reconstruction)."""
     if isinstance(scan, list):
         scans = scan
     else:
@@ -188,24 +194,30 @@ def run_reconstruct(
     processing = processing or scans[0].config.processing
     display = _stage_display(scans) if progress else None
     try:
-        run, scene = _reconstruct(
-            scans, out, processing, X_FC, stereo, streamed, display, t0, origin
-        )
+        run = _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0, origin)
     finally:
         if display is not None:
             display.close()
-    # The model is complete and on disk before its 3D page is drawn: the page is a view of
-    # it, not part of it (a failure to write it is a warning).
-    seconds = write_reconstruction_page(out, scene)
-    if seconds is not None:
-        report = {**run.report, "model_page": PAGE_NAME, "model_page_s": seconds}
-        try:
-            _write_report(out, report)
-        except OSError as e:
-            log.warning("%s: the link to %s not added (%s)", out, PAGE_NAME, e)
-        else:
-            run = ReconstructRun(run.result, report, out)
-    return run
+    return add_model_page(run) if page else run
+
+
+def add_model_page(run: ReconstructRun) -> ReconstructRun:
+    """model.html in the finished results folder, and its link in report.json and summary.md.
+    The model is complete and on disk before its page is drawn: the page is a view of it, not
+    part of it, and a failure to write it is a warning."""
+    if run.page_scene is None:
+        return run
+    out = run.results_dir
+    seconds = write_reconstruction_page(out, run.page_scene)
+    if seconds is None:
+        return replace(run, page_scene=None)
+    report = {**run.report, "model_page": PAGE_NAME, "model_page_s": seconds}
+    try:
+        _write_report(out, report)
+    except OSError as e:
+        log.warning("%s: the link to %s not added (%s)", out, PAGE_NAME, e)
+        return replace(run, page_scene=None)
+    return ReconstructRun(run.result, report, out)
 
 
 def _stage_display(scans: list[SavedScan]):
@@ -214,8 +226,9 @@ def _stage_display(scans: list[SavedScan]):
     return StageProgress(sum(len(s.store.captured_indices()) for s in scans))
 
 
-def _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0, origin):
-    """The reconstruction written to `out`, and the builder of its page's scene."""
+def _reconstruct(
+    scans, out, processing, X_FC, stereo, streamed, display, t0, origin
+) -> ReconstructRun:
     first = scans[0]
     config = with_roi_centre(processing.reconstruction, np.array(first.config.scan_center_m))
     on_stage = display.on_stage if display else None
@@ -301,7 +314,7 @@ def _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0, or
         model = stereo or first.camera_model
         return reconstruction_scene(result, views, processing, first, model, truth, truth_samples)
 
-    return ReconstructRun(result, merged, out), scene
+    return ReconstructRun(result, merged, out, scene)
 
 
 def _streamed_for(streamed, scan: SavedScan, processing, X_FC, stereo) -> tuple[dict, dict]:
