@@ -275,3 +275,18 @@ def test_view_opens_a_browser_in_a_graphical_session(tiny_scan, monkeypatch, cap
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     assert main(["view", str(tiny_scan.scan_dir)]) == 0
     assert len(opened) == 1 and capsys.readouterr().out.startswith("model page: ")
+
+
+def test_an_inspection_writes_its_page(tiny_scan, tmp_path):
+    from scanner.inspect.inspection import InspectOptions, run_inspect
+    from scanner.reports.model_page import REFERENCE_PATH
+
+    options = InspectOptions(
+        reference=tiny_scan.scan_dir / "truth_mesh.ply", align="none", out=tmp_path / "inspection"
+    )
+    run = run_inspect(tiny_scan.scan_dir, options)
+    page = run.out / PAGE_NAME
+    assert "model.html" in run.report["files"] and page.stat().st_size < MAX_PAGE_BYTES
+    assert "](model.html)" in (run.out / "summary.md").read_text()
+    paths = object_paths(page_commands(page))
+    assert {f"{MODEL_PATH}/mesh", f"{REFERENCE_PATH}/mesh"} <= paths
