@@ -227,19 +227,24 @@ def test_latest_results_folder(tmp_path, names):
 
 
 def test_without_truth_the_colours_are_the_distance_to_the_data():
-    """A vertex 1 mm off the fused cloud gets the map's +1 mm colour (the scale's end)."""
+    """A vertex on the fused cloud is white, one at the coverage estimate's support distance
+    (or beyond: no data held it) the map's red end."""
     from types import SimpleNamespace
 
-    from scanner.reconstruct.model_scene import _colour_values
+    from reconstruction.evaluation.coverage import SUPPORT_M
+    from scanner.configs.scan import ProcessingConfig
+    from scanner.reconstruct.model_scene import colouring
 
     points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
     result = SimpleNamespace(fused=SimpleNamespace(points_W=points))
-    vertices = np.array([[0.0, 0.0, 0.001], [1.0, 0.0, 0.0]])
-    values, meaning = _colour_values(vertices, result, None)
-    np.testing.assert_allclose(values, [0.001, 0.0], atol=1e-12)
-    assert "measured" in meaning
-    colours = mesh_colours(DisplayMesh(vertices, np.array([[0, 1, 1]]), values), 0.001)
-    np.testing.assert_allclose(colours[0], colour_map_rgb()[-1] / 255.0)
+    vertices = np.array([[0.0, 0.0, SUPPORT_M], [1.0, 0.0, 0.0], [0.0, 0.0, -0.01]])
+    c = colouring(vertices, result, None, ProcessingConfig())
+    np.testing.assert_allclose(c.values_m, [SUPPORT_M, 0.0, 0.01], atol=1e-12)
+    assert not c.signed and c.scale_m == SUPPORT_M and "measured" in c.meaning
+    colours = mesh_colours(DisplayMesh(vertices, np.array([[0, 1, 2]]), c.values_m), c.scale_m)
+    rgb = colour_map_rgb() / 255.0
+    np.testing.assert_allclose(colours[[0, 2]], rgb[[-1, -1]])
+    np.testing.assert_allclose(colours[1], rgb[len(rgb) // 2], atol=2.5e-3)
 
 
 def test_only_what_is_displayed_is_decimated():

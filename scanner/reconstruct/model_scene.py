@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -37,21 +38,42 @@ def headline_mesh(result: ReconstructionResult, primary: str):
     return next((m for m in result.meshes.values() if len(m.triangles)), None)
 
 
-def _colour_values(vertices: np.ndarray, result: ReconstructionResult, truth) -> tuple:
-    """Per displayed vertex the value its colour shows, and what it means."""
+@dataclass(frozen=True, eq=False)
+class Colouring:
+    """Per displayed vertex the value its colour shows (m), what it is, and its scale: signed
+    values span -scale_m..+scale_m (blue, white, red), unsigned ones 0..scale_m (white..red)."""
+
+    values_m: np.ndarray
+    meaning: str
+    scale_m: float
+    signed: bool
+
+
+def colouring(
+    vertices: np.ndarray, result: ReconstructionResult, truth, processing: ProcessingConfig
+) -> Colouring:
+    """With the truth, the signed deviation on the deviation pictures' fixed scale."""
     if truth is not None:
         from reconstruction.evaluation.deviation import signed_distances
 
-        return signed_distances(vertices, truth[1]), "signed deviation from the true surface"
+        return Colouring(
+            signed_distances(vertices, truth[1]),
+            "signed deviation from the true surface",
+            processing.deviation_scale_m,
+            True,
+        )
+    from reconstruction.evaluation.coverage import SUPPORT_M
     from reconstruction.evaluation.metrics import distances_to_points
 
     # Without truth, the one per-point figure the reports compute is how far the surface is
-    # from the fused measurements (the coverage estimate counts a part seen only within
-    # SUPPORT_M of them); the hangings' and the hand-eye agreement are single figures.
-    # Far from the data is where the surface bridges what no view measured.
-    return (
+    # from the fused measurements: the coverage estimate counts a part as seen only within
+    # SUPPORT_M of them (the hangings' and the hand-eye agreement are single figures). On that
+    # scale, saturated red is where the surface bridges what no view measured.
+    return Colouring(
         distances_to_points(vertices, result.fused.points_W),
         "distance to the nearest measured (fused) point",
+        SUPPORT_M,
+        False,
     )
 
 
@@ -83,7 +105,7 @@ def reconstruction_scene(
     if mesh is None:
         return None
     vertices, triangles = decimated(mesh.vertices, mesh.triangles)
-    values, meaning = _colour_values(vertices, result, truth)
+    colours = colouring(vertices, result, truth, processing)
     unseen = None
     if truth_samples is not None and truth_samples[1] is not None:
         unseen = thinned(truth_samples[0].points[~truth_samples[1]])
@@ -94,9 +116,10 @@ def reconstruction_scene(
         robot = RobotPose(views.joints[first.index], result.X_FC, camera_model.X_CR)
     cell = scan.config.cell
     return ModelScene(
-        mesh=DisplayMesh(vertices, triangles, values),
-        scale_m=processing.deviation_scale_m,
-        colour_meaning=f"{mesh.name} mesh: {meaning}",
+        mesh=DisplayMesh(vertices, triangles, colours.values_m),
+        scale_m=colours.scale_m,
+        colour_meaning=f"{mesh.name} mesh: {colours.meaning}",
+        signed=colours.signed,
         unseen_W=unseen,
         frustums=tuple(ViewFrustum(v.X_WC, v.hanging) for v in result.views),
         camera=camera,

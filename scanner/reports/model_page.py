@@ -181,10 +181,12 @@ def _draw(meshcat, scene: ModelScene) -> list[str]:
 
 def _legend(scene: ModelScene, views: int) -> str:
     """A fixed caption at the page's bottom left: what the colours mean."""
-    lines = [
-        f"{scene.colour_meaning}; scale +-{1e3 * scene.scale_m:g} mm "
-        "(blue inside, white on it, red outside)",
-    ]
+    scale_mm = 1e3 * scene.scale_m
+    if scene.signed:
+        scale = f"scale +-{scale_mm:g} mm (blue inside, white on it, red outside)"
+    else:
+        scale = f"white 0 mm to red {scale_mm:g} mm or more"
+    lines = [f"{scene.colour_meaning}; {scale}"]
     if scene.unseen_W is not None and len(scene.unseen_W):
         lines.append("green points: the true surface no view saw")
     if views:

@@ -58,9 +58,10 @@ class RobotPose:
 class ModelScene:
     """Everything model.html shows, in the first hanging's world frame W (metres).
 
-    mesh: the headline mesh coloured by `values_m` on the fixed scale +-scale_m (signed: blue
-    inside, red outside; unsigned values use the red half); colour_meaning: what the colours
-    are, for the page's title; unseen_W (K, 3): points of the true surface no view saw;
+    mesh: the headline mesh coloured by `values_m` on the fixed scale +-scale_m (blue inside,
+    red outside; `signed` False: distances, 0..scale_m, the map's white-to-red half);
+    colour_meaning: what the colours are, for the page's caption; unseen_W (K, 3): points of
+    the true surface no view saw;
     frustums + camera: the views; fixture_segments: (start, end) pairs of the rods' axes;
     cell: the cell (its boxes are outlined; the arm is built in it); robot: the arm at one
     pose; reference: a reference mesh (an inspection) drawn as a wireframe."""
@@ -68,6 +69,7 @@ class ModelScene:
     mesh: DisplayMesh
     scale_m: float
     colour_meaning: str
+    signed: bool = True
     unseen_W: np.ndarray | None = None
     frustums: tuple[ViewFrustum, ...] = ()
     camera: PinholeCamera | None = None
