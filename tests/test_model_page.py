@@ -178,6 +178,13 @@ def test_the_scans_results_have_the_page(tiny_scan):
     assert nearest.max() < 1e-3  # every vertex wears a colour of the map
 
 
+def test_scan_and_reconstruct_print_where_the_page_is(tiny_scan):
+    from scanner.commands.scan import scan_result_lines
+
+    page = tiny_scan.scan_dir / "results" / PAGE_NAME
+    assert f"3D page: {page} (scanner view {tiny_scan.scan_dir})" in scan_result_lines(tiny_scan)
+
+
 def _run_view(args: list[str], capsys) -> tuple[int, str, str]:
     from scanner.commands.main import main
 
