@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Idempotent set-up: system library for open3d, then .venv/ in the repository root with the package.
+# Idempotent set-up: system library for open3d (and with --tests a headless browser), then .venv/
+# in the repository root with the package.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -12,6 +13,20 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
         echo "setup: open3d needs the system library libusb-1.0-0; install it, e.g." >&2
         echo "       sudo apt-get install libusb-1.0-0" >&2
         exit 1
+    fi
+fi
+
+# --tests (make test): also the headless browser the model-page tests draw WebGL in. Only then:
+# it is a large package that `make scan` does not need. Without it those tests are skipped.
+if [ "${1:-}" = "--tests" ] && ! command -v chromium >/dev/null; then
+    if [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null; then
+        echo "setup: installing chromium (the browser tests of model.html) with apt-get"
+        apt-get install -y -q chromium >/dev/null 2>&1 \
+            || { apt-get update -q >/dev/null && apt-get install -y -q chromium >/dev/null; } \
+            || echo "setup: chromium could not be installed; the browser tests will be skipped" >&2
+    else
+        echo "setup: no chromium: the browser tests of model.html will be skipped" \
+            "(install it, e.g. sudo apt-get install chromium)" >&2
     fi
 fi
 

@@ -112,7 +112,9 @@ def test_without_joint_angles_or_observable_offsets_the_calibration_goes_on(seed
     # An arm model whose parameters change nothing: nothing is observable, said per parameter.
     drawn = arm_model()
     inert = ArmModel(
-        lambda q, p: drawn.flange_pose(q, np.zeros(drawn.size)), ("upper_arm_m",), ("upper arm length",)
+        lambda q, p: drawn.flange_pose(q, np.zeros(drawn.size)),
+        ("upper_arm_m",),
+        ("upper arm length",),
     )
     he = calibrate_hand_eye(CONFIG.board, observations, STEREO, arm=inert, robot_offsets=True)
     assert not he.robot_errors.kept

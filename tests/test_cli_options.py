@@ -245,6 +245,8 @@ CASES = [
     (INSPECT, "--align", _names(["best-fit", "none"])),
     (INSPECT, "--out", _paths(OUT_PATHS)),
     (INSPECT, "--force=1", None),
+    (["view"], "", _paths(PATHS)),
+    (["view", "{root}/empty"], "--no-browser=1", None),
     (IMPORT_TO, "--image-size", st.just("640x480")),
     (IMPORT_ROS_TO, "--image-size", st.just("1280x960")),
     (IMPORT_TO, "--length-unit", BAD_LENGTH_UNITS),

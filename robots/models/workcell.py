@@ -284,6 +284,7 @@ def build_workcell(
     extras: Sequence[Callable[[MultibodyPlant, object], None]] = (),
     include_object: bool = True,
     X_WO: np.ndarray | None = None,
+    meshcat_prefix: str = "visualizer",
 ) -> Workcell:
     """Robot, camera tool (frames at the given X_FC), cell boxes and object in one RobotDiagram.
 
@@ -294,6 +295,8 @@ def build_workcell(
     calibration board, a marker on the flange); `include_object=False` leaves the object, its
     keep-out sphere and its rod out of the cell (calibration needs a clear view of the board).
     `X_WO`: the object's pose (default the configuration's; a re-hung object differs).
+    `meshcat_prefix`: where in meshcat's scene tree the geometry goes (Drake's default puts it
+    under /drake/visualizer; a path starting with / is absolute).
     """
     builder = RobotDiagramBuilder(time_step=0.0)
     plant = builder.plant()
@@ -312,7 +315,12 @@ def build_workcell(
     plant.Finalize()
     _filter_wrist_tool(plant, builder.scene_graph(), instance)
     if meshcat is not None:
-        from pydrake.geometry import MeshcatVisualizer
+        from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams
 
-        MeshcatVisualizer.AddToBuilder(builder.builder(), builder.scene_graph(), meshcat)
+        MeshcatVisualizer.AddToBuilder(
+            builder.builder(),
+            builder.scene_graph(),
+            meshcat,
+            MeshcatVisualizerParams(prefix=meshcat_prefix),
+        )
     return Workcell(builder.Build(), instance, config, renderer, include_object)

@@ -117,5 +117,5 @@ def run_inspect_command(args: argparse.Namespace) -> int:
         f"{d['p90_abs_mm']:.3f} mm, max |d| {d['max_abs_mm']:.3f} mm"
     )
     print(verdict_line(r))
-    print(f"inspection: {run.out} (summary.md, deviation.png)")
+    print(f"inspection: {run.out} (summary.md, {', '.join(r['files'])})")
     return 0 if run.passed else EXIT_OUT_OF_TOLERANCE

@@ -17,6 +17,7 @@ from scanner.commands.inspect import add_inspect_parser
 from scanner.commands.monitor import add_monitor_parser
 from scanner.commands.reconstruct import add_merge_parser, add_reconstruct_parser
 from scanner.commands.scan import add_preview_parser, add_scan_parser
+from scanner.commands.view import add_view_parser
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_parser(sub)
     add_import_parser(sub)
     add_inspect_parser(sub)
+    add_view_parser(sub)
     add_monitor_parser(sub)
     add_check_cell_parser(sub)
     add_emulate_parser(sub)

@@ -168,7 +168,13 @@ def run_reconstruct_command(args: argparse.Namespace) -> int:
         print(line)
     _warn_handeye(run.report)
     print(f"results: {run.results_dir}")
+    _print_page(run)
     return _verdict(run.report)
+
+
+def _print_page(run) -> None:
+    if "model_page" in run.report:
+        print(f"3D page: {run.results_dir / run.report['model_page']} (scanner view)")
 
 
 def _reconstruct_batch(dirs: list[Path], options, args: argparse.Namespace) -> int:
@@ -230,6 +236,7 @@ def run_merge_command(args: argparse.Namespace) -> int:
         )
     _warn_handeye(r)
     print(f"results: {run.results_dir}")
+    _print_page(run)
     return _verdict(r)
 
 

@@ -272,6 +272,8 @@ def scan_result_lines(result) -> list[str]:
     ]
     if (results / "summary.md").is_file():
         lines.append(f"summary: {results / 'summary.md'}")
+    if "model_page" in r:
+        lines.append(f"3D page: {results / r['model_page']} (scanner view {result.scan_dir})")
     return [line for line in lines if line]
 
 

@@ -24,6 +24,7 @@ INSPECTION_MARKER = "inspection.json"
 # The least share of the model that must lie on the aligned reference for the comparison to
 # mean anything (below it the parts differ, or the unit or the alignment is wrong).
 MIN_OVERLAP = 0.5
+REFERENCE_TRIANGLES = 8_000  # the reference's wireframe on model.html
 
 
 @dataclass(frozen=True)
@@ -212,9 +213,40 @@ def _write_files(folder: Path, model, placed, signed, stats, report, options) ->
     )
     report["scale_mm"] = 1e3 * options.scale_m
     report["files"] = ["deviation.png", "deviation_mesh.ply", "reference_aligned.ply"]
+    if _write_page(folder, model, placed, options.scale_m):
+        report["files"].append("model.html")
     (folder / "summary.md").write_text(inspection_summary(report))
     # Written last: its presence marks a finished inspection.
     atomic_write_text(folder / INSPECTION_MARKER, json.dumps(report, indent=2) + "\n")
+
+
+def _write_page(folder: Path, model, placed, scale_m: float) -> bool:
+    """model.html: the model coloured by its deviation (the picture's scale) over the aligned
+    reference as a wireframe. A page that fails to write is a warning: the inspection stands
+    without it."""
+    import logging
+
+    from reconstruction.evaluation.deviation import signed_distances
+    from scanner.reports.model_page import PAGE_NAME, write_model_page
+    from scanner.reports.model_page_layers import DisplayMesh, ModelScene, decimated
+
+    try:
+        v, t = decimated(model.vertices, model.triangles)
+        # A wireframe of every triangle would hide the model behind it.
+        rv, rt = decimated(placed.vertices, placed.triangles, REFERENCE_TRIANGLES)
+        scene = ModelScene(
+            mesh=DisplayMesh(v, t, signed_distances(v, placed)),
+            scale_m=scale_m,
+            colour_meaning="model: signed deviation from the aligned reference (grey wireframe)",
+            reference=DisplayMesh(rv, rt, np.zeros(len(rv))),
+        )
+        write_model_page(scene, folder / PAGE_NAME, "scanner inspection")
+    except Exception as e:  # noqa: BLE001 - the inspection's figures stand without the page
+        logging.getLogger("scanner.inspect").warning(
+            "%s not written (%s: %s)", PAGE_NAME, type(e).__name__, e
+        )
+        return False
+    return True
 
 
 def verdict_line(report: dict) -> str:
@@ -253,4 +285,10 @@ def inspection_summary(report: dict) -> str:
         "",
         "![deviation](deviation.png)",
     ]
+    if "model.html" in report.get("files", []):
+        lines += [
+            "",
+            "The model over the reference in 3D, in any browser: [`model.html`](model.html), "
+            "or `scanner view` on this folder.",
+        ]
     return "\n".join(lines) + "\n"

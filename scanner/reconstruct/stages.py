@@ -9,6 +9,7 @@ results folder (captures are never modified):
     evaluate    when truth.yaml is present: surface metrics and hand-eye error vs the truth
     write       fused_cloud.ply, mesh_*.ply (+ .obj/.stl on request), reconstruction.yaml,
                 plots; then report.json (merged with the scan's) and summary.md
+    (then)      model.html, the 3D page, once the results folder is in place
 """
 
 from __future__ import annotations
@@ -18,8 +19,9 @@ import json
 import logging
 import math
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -41,8 +43,10 @@ from scanner.reconstruct.evaluation import (
     to_first_hanging,
     truth_metrics,
 )
+from scanner.reconstruct.model_scene import reconstruction_scene, write_reconstruction_page
 from scanner.reconstruct.scan_views import gather_views, with_roi_centre
 from scanner.reconstruct.view_stream import StreamedViews, settings_key
+from scanner.reports.model_page import PAGE_NAME
 from scanner.reports.self_checks import self_check_record
 from scanner.scan_dir.captures import atomic_write_text
 from scanner.scan_dir.manifest import SavedScan, open_scan
@@ -56,6 +60,8 @@ class ReconstructRun:
     result: ReconstructionResult
     report: dict
     results_dir: Path
+    # Builds the scene of the results' 3D page (`add_model_page`); None once it is written.
+    page_scene: Callable[[], object] | None = None
 
 
 RECONSTRUCTION_MARKER = "reconstruction.yaml"
@@ -168,6 +174,7 @@ def run_reconstruct(
     streamed: StreamedViews | None = None,
     progress: bool = False,
     origin: dict[str, str] | None = None,
+    page: bool = True,
 ) -> ReconstructRun:
     """Reconstruct a saved scan (a directory, or one already opened), or merge a list of opened
     scans into one model: every hanging of every scan aligned into the first one's frame
@@ -176,7 +183,9 @@ def run_reconstruct(
     SCAN_DIR/results, written as a whole or not at all.
     `streamed`: per-view results computed while the scan ran (used where the settings match);
     `progress`: show the stages on stderr (when it is a terminal); `origin`: where the caller's
-    X_FC and processing came from, for the summary (`X_FC_given`, `processing_from`)."""
+    X_FC and processing came from, for the summary (`X_FC_given`, `processing_from`);
+    `page`: write the 3D page once the results are in place (else the caller does, with
+    `add_model_page`, e.g. after timing the reconstruction)."""
     if isinstance(scan, list):
         scans = scan
     else:
@@ -186,10 +195,30 @@ def run_reconstruct(
     processing = processing or scans[0].config.processing
     display = _stage_display(scans) if progress else None
     try:
-        return _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0, origin)
+        run = _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0, origin)
     finally:
         if display is not None:
             display.close()
+    return add_model_page(run) if page else run
+
+
+def add_model_page(run: ReconstructRun) -> ReconstructRun:
+    """model.html in the finished results folder, and its link in report.json and summary.md.
+    The model is complete and on disk before its page is drawn: the page is a view of it, not
+    part of it, and a failure to write it is a warning."""
+    if run.page_scene is None:
+        return run
+    out = run.results_dir
+    seconds = write_reconstruction_page(out, run.page_scene)
+    if seconds is None:
+        return replace(run, page_scene=None)
+    report = {**run.report, "model_page": PAGE_NAME, "model_page_s": seconds}
+    try:
+        _write_report(out, report)
+    except OSError as e:
+        log.warning("%s: the link to %s not added (%s)", out, PAGE_NAME, e)
+        return replace(run, page_scene=None)
+    return ReconstructRun(run.result, report, out)
 
 
 def _stage_display(scans: list[SavedScan]):
@@ -282,7 +311,12 @@ def _reconstruct(
         merged = {**earlier, **report}
         merged["self_checks"] = self_check_record(merged)
         _write_report(staging, merged)
-    return ReconstructRun(result, merged, out)
+
+    def scene():
+        model = stereo or first.camera_model
+        return reconstruction_scene(result, views, processing, first, model, truth, truth_samples)
+
+    return ReconstructRun(result, merged, out, scene)
 
 
 def _streamed_for(streamed, scan: SavedScan, processing, X_FC, stereo) -> tuple[dict, dict]:

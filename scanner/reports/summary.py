@@ -264,6 +264,13 @@ def write_summary(report: dict, out: Path) -> Path:
     lines += _handeye_lines(report)
     if "outputs" in report:
         lines += ["", "## Files", ""] + [f"- `{p}`" for p in report["outputs"].values()]
+    if "model_page" in report:
+        page = report["model_page"]
+        lines += [
+            "",
+            f"The model in 3D, in any browser (no network needed): [`{page}`]({page}), "
+            "or `scanner view` on this folder.",
+        ]
     shown = {f"deviation_{n}" for n in report.get("deviation", {})}
     for name, path in report.get("plots", {}).items():
         if name not in shown:

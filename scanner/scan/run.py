@@ -21,7 +21,7 @@ from robots.simulation.operator import hung_pose
 from robots.simulation.truth import hung_pose_of, save_truth
 from scanner.configs.scan import ScanConfig, scan_config_to_dict
 from scanner.monitor.scan_monitor import intruders_truth
-from scanner.reconstruct.stages import holds_reconstruction, run_reconstruct
+from scanner.reconstruct.stages import add_model_page, holds_reconstruction, run_reconstruct
 from scanner.reconstruct.view_stream import ViewStream, processing_hidden_s
 from scanner.reports.summary import write_summary
 from scanner.scan.decision import RunSummary
@@ -246,7 +246,14 @@ def run_scan(
     _write_scan_report(store, report())
     if config.reconstruct and status == "captured":
         with timer("reconstruction"):
-            run_reconstruct(saved or open_scan(store.root), streamed=streamed, progress=show_stages)
+            done = run_reconstruct(
+                saved or open_scan(store.root),
+                streamed=streamed,
+                progress=show_stages,
+                page=False,
+            )
+        # The 3D page after the model: its time is not the wait for the model.
+        add_model_page(done)
         store.update_manifest(status="complete")
         _write_scan_report(store, report())
     return ScanResult(store.root, _read_report(store))

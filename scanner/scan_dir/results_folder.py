@@ -29,6 +29,23 @@ def free_results_dir(root: Path, marker: str, name: str = "results") -> Path:
     return candidate
 
 
+def latest_results_dir(root: Path, marker: str, name: str = "results") -> Path | None:
+    """The newest of ROOT/NAME, ROOT/NAME-2, ... that holds a result (the highest N; runs
+    number their folders upwards, `free_results_dir`), or None."""
+    found = []
+    for path in Path(root).glob(f"{name}*"):
+        suffix = path.name[len(name) :]
+        if suffix == "":
+            n = 1
+        elif suffix.startswith("-") and suffix[1:].isdigit():
+            n = int(suffix[1:])
+        else:
+            continue
+        if holds_result(path, marker):
+            found.append((n, path))
+    return max(found)[1] if found else None
+
+
 def require_replaceable(out: Path, marker: str, force: bool, what: str) -> None:
     """Refuse an --out that holds a finished result unless --force."""
     if holds_result(out, marker) and not force:
