@@ -41,7 +41,10 @@ def scan_dir(vase12_scan_dir):
 @pytest.fixture(scope="module")
 def runs(scan_dir, tmp_path_factory):
     before = _hashes(scan_dir)
-    base = ProcessingConfig()
+    # Both surfaces (the default builds Poisson alone): the tests below check each.
+    default = ProcessingConfig()
+    surfaces = replace(default.reconstruction.surfaces, methods=("poisson", "tsdf"))
+    base = replace(default, reconstruction=replace(default.reconstruction, surfaces=surfaces))
     out = {}
     for name in ("corrected", "icp", "pose_only"):
         rec = variant_config(base.reconstruction, name)

@@ -24,11 +24,12 @@ from reconstruction.registration.views import ViewCloud
 from reconstruction.surfaces.config import SurfaceConfig
 
 # Defaults except what keeps this file at seconds: 4 ICP partners per view (default 6) and
-# Poisson depth 8 (default 9, ~0.8 mm cells instead of ~0.4 mm).
+# Poisson depth 8 (default 9, ~0.8 mm cells instead of ~0.4 mm); and TSDF beside Poisson (the
+# default builds Poisson alone) so that both surfaces are checked.
 CONFIG = ReconstructionConfig(
     filter=FilterConfig(roi=RegionOfInterest(center_m=tuple(OBJECT_CENTER_W))),
     icp=IcpConfig(max_pairs_per_view=4),
-    surfaces=SurfaceConfig(poisson_depth=8),
+    surfaces=SurfaceConfig(methods=("poisson", "tsdf"), poisson_depth=8),
 )
 NO_SURFACES = replace(CONFIG, surfaces=SurfaceConfig(methods=()))
 

@@ -11,6 +11,8 @@ from reconstruction.stereo.camera_model import StereoDesign
 TINY_PROCESSING = {
     "reconstruction": {
         "surfaces": {
+            # Both surfaces (the default builds Poisson alone): the tests check each.
+            "methods": ["poisson", "tsdf"],
             "poisson_depth": 6,
             "tsdf_voxel_size_m": 0.002,
             "fused_voxel_size_m": 0.002,

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
-from reconstruction.common.stage_timer import StageTimer
+from reconstruction.common.stage_timer import StageTimer, cpu_seconds
 from robots.models.kinematics import Kinematics
 from robots.simulation.cell import Simulation, object_vertices_W
 from robots.simulation.operator import hung_pose
@@ -228,6 +228,8 @@ def run_scan(
         try:
             summary = run.passes(hangings, hanging)
         finally:
+            # The last capture is stored: from here on the user waits for the model.
+            last_capture_wall, last_capture_cpu = time.perf_counter(), cpu_seconds()
             streamed = stream.finish() if stream else None
     status = "interrupted" if summary.state.value == "aborted" else "captured"
     skipped = [{"index": o.index, "reason": o.reason} for o in summary.skipped]
@@ -252,10 +254,14 @@ def run_scan(
                 progress=show_stages,
                 page=False,
             )
+        waited = {
+            "after_last_capture_s": time.perf_counter() - last_capture_wall,
+            "after_last_capture_cpu_s": cpu_seconds() - last_capture_cpu,
+        }
         # The 3D page after the model: its time is not the wait for the model.
         add_model_page(done)
         store.update_manifest(status="complete")
-        _write_scan_report(store, report())
+        _write_scan_report(store, {**report(), **waited})
     return ScanResult(store.root, _read_report(store))
 
 
