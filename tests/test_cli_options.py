@@ -179,6 +179,7 @@ CASES = [
     (["calibrate", "--board", "charuco"], "--marker-size", _floats(0.02)),
     (["calibrate"], "--dictionary", _names([])),
     (["calibrate"], "--inverted=1", None),
+    (["calibrate"], "--robot-offsets=1", None),
     (["calibrate"], "--offline", _paths(PATHS)),
     (["calibrate", "--offline", "{root}/foreign"], "--pose-convention", _names([])),
     (["calibrate"], "--pose-convention", st.just("kuka")),

@@ -13,6 +13,7 @@ import yaml
 from reconstruction.pipeline import variant_config
 from scanner.configs.scan import ProcessingConfig
 from scanner.reconstruct.stages import run_reconstruct
+from scanner.reports.self_checks import EXIT_SELF_CHECK_FAILED
 from scanner.scan_dir.captures import CaptureStore
 
 pytestmark = pytest.mark.slow
@@ -90,8 +91,11 @@ def test_a_rough_mount_is_corrected_or_flagged_from_the_command_line(scan_dir, t
     }
     (tmp_path / "no_coarse.yaml").write_text(yaml.safe_dump(config))
     out = tmp_path / "narrow"
-    assert main([*args, "--config", str(tmp_path / "no_coarse.yaml"), "--out", str(out)]) == 0
+    # Written, but the exit code and the last line say it is not to be trusted.
+    rc = main([*args, "--config", str(tmp_path / "no_coarse.yaml"), "--out", str(out)])
+    assert rc == EXIT_SELF_CHECK_FAILED
     printed = capsys.readouterr().out
+    assert printed.strip().splitlines()[-1].startswith("verdict: FAILED its self-checks")
     report = json.loads((out / "report.json").read_text())
     assert report["handeye_error_mm"] > 2.0  # the premise
     assert report["handeye_converged"] is False and report["handeye_diagnosis"]["failures"]
