@@ -51,6 +51,7 @@ def runs(scan_dir, tmp_path_factory):
         results = tmp_path_factory.mktemp(name)
         out[name] = run_reconstruct(scan_dir, replace(base, reconstruction=rec), results)
     out["hashes_before"] = before
+    out["base"] = base
     return out
 
 
@@ -81,7 +82,7 @@ def test_meshes_cover_the_observed_surface_without_holes(runs):
 
 def test_captures_are_untouched_and_a_second_run_is_the_same(runs, scan_dir, tmp_path):
     assert _hashes(scan_dir) == runs["hashes_before"]
-    again = run_reconstruct(scan_dir, ProcessingConfig(), tmp_path / "again")
+    again = run_reconstruct(scan_dir, runs["base"], tmp_path / "again")
     first = runs["corrected"]
     np.testing.assert_allclose(again.result.X_FC, first.result.X_FC, atol=1e-9)
     for key in ("chamfer_mm", "fscore_1mm", "completeness_2mm"):
