@@ -46,6 +46,22 @@ def _options(root):
     )
 
 
+def _run_open3dv(data, intrinsics_root, out, *extra):
+    """`scanner calibrate --offline` on Open3DV-style data with its board and convention."""
+    return _run(
+        "--offline",
+        str(data),
+        *BOARD_ARGS,
+        "--pose-convention",
+        "open3dv",
+        "--intrinsics",
+        str(intrinsics_root / "param.txt"),
+        *extra,
+        "--out",
+        str(out),
+    )
+
+
 def _run(*args):
     return subprocess.run(
         [sys.executable, "-m", "scanner", "calibrate", *args],
@@ -57,17 +73,7 @@ def _run(*args):
 
 def test_real_circle_grid_matches_the_reference(tmp_path):
     root = shared_data(REAL)
-    r = _run(
-        "--offline",
-        str(root),
-        *BOARD_ARGS,
-        "--pose-convention",
-        "open3dv",
-        "--intrinsics",
-        str(root / "param.txt"),
-        "--out",
-        str(tmp_path),
-    )
+    r = _run_open3dv(root, root, tmp_path)
     assert r.returncode == 0, r.stderr
     calibration = load_calibration(tmp_path / "results" / "calibration.yaml")
     assert calibration.stereo is None and calibration.camera.width == 1920
@@ -247,18 +253,7 @@ def test_real_data_reports_held_out_prediction_for_every_method(tmp_path):
     OpenCV's methods, printed and in the report; --robot-offsets on poses without joint
     angles says why nothing was estimated and calibrates without them (not a failure)."""
     root = shared_data(REAL)
-    r = _run(
-        "--offline",
-        str(root),
-        *BOARD_ARGS,
-        "--pose-convention",
-        "open3dv",
-        "--intrinsics",
-        str(root / "param.txt"),
-        "--robot-offsets",
-        "--out",
-        str(tmp_path),
-    )
+    r = _run_open3dv(root, root, tmp_path, "--robot-offsets")
     assert r.returncode == 0, r.stderr
     report = json.loads((tmp_path / "results" / "report.json").read_text())
     held = report["held_out"]
@@ -282,17 +277,7 @@ def test_fewer_than_six_views_are_held_out_one_at_a_time(tmp_path):
     for k in range(5):
         for suffix in (".bmp", ".txt"):
             shutil.copy(root / f"pos{k}{suffix}", data / f"pos{k}{suffix}")
-    r = _run(
-        "--offline",
-        str(data),
-        *BOARD_ARGS,
-        "--pose-convention",
-        "open3dv",
-        "--intrinsics",
-        str(root / "param.txt"),
-        "--out",
-        str(tmp_path / "out"),
-    )
+    r = _run_open3dv(data, root, tmp_path / "out")
     assert r.returncode == 0, r.stderr
     report = json.loads((tmp_path / "out" / "results" / "report.json").read_text())
     assert report["held_out"]["folds"] == "leave-one-out over 5 views"

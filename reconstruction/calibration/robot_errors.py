@@ -255,18 +255,22 @@ def estimate(
         )
     joints = np.array([o.q_rad for o in inliers], float)
     zero = np.zeros(arm.size)
-    with_arm = refine_on_board(
-        board,
-        inliers,
-        cameras,
-        refined.X_FC,
-        refined.X_WB,
-        settings,
-        joints=joints,
-        flange_pose=arm.flange_pose,
-        estimated=found,
-        params0=zero,
-    )
+
+    def fit(start: Refinement, weights: CalibrationSettings, params0: np.ndarray) -> Refinement:
+        return refine_on_board(
+            board,
+            inliers,
+            cameras,
+            start.X_FC,
+            start.X_WB,
+            weights,
+            joints=joints,
+            flange_pose=arm.flange_pose,
+            estimated=found,
+            params0=params0,
+        )
+
+    with_arm = fit(refined, settings, zero)
     # Once the arm's systematic errors are modelled, what is left of each pose's error is much
     # smaller than the arm's stated accuracy; weighed with that accuracy the per-pose
     # corrections stay free to absorb what the parameters should explain (joints 2 and 3 then
@@ -287,18 +291,7 @@ def estimate(
                 float(np.sqrt(np.mean(with_arm.corrections[:, :3] ** 2))),
             ),
         )
-        with_arm = refine_on_board(
-            board,
-            inliers,
-            cameras,
-            with_arm.X_FC,
-            with_arm.X_WB,
-            measured,
-            joints=joints,
-            flange_pose=arm.flange_pose,
-            estimated=found,
-            params0=with_arm.robot_params,
-        )
+        with_arm = fit(with_arm, measured, with_arm.robot_params)
     without = held_out_refined(
         board,
         inliers,
