@@ -61,7 +61,9 @@ def test_the_scans_model_equals_an_offline_reconstruction(streamed_scan, tmp_pat
     offline = run_reconstruct(scan_dir, results_dir=tmp_path / "offline")
     streamed = yaml.safe_load((scan_dir / "results" / "reconstruction.yaml").read_text())
     again = yaml.safe_load((tmp_path / "offline" / "reconstruction.yaml").read_text())
+    # The tiny scan keeps its nominal mount (no hand-eye record); the X_FC used must agree.
     assert streamed.get("handeye") == again.get("handeye")
+    assert streamed["X_FC"] == again["X_FC"]
     import open3d as o3d
 
     a = o3d.io.read_triangle_mesh(str(scan_dir / "results" / "mesh_poisson.ply"))

@@ -6,6 +6,7 @@ X_WB (plus, optionally, a small correction of each reported robot pose) explain 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -103,7 +104,13 @@ class Refinement:
     # and which of them were estimated.
     robot_params: np.ndarray | None = None
     estimated: tuple[int, ...] = ()
-    linearization: Linearization | None = None
+    # Computes the `Linearization` (a Jacobian by finite differences): called only for the
+    # refinements that are assessed, not for every round of the outlier test.
+    linearize: Callable[[], Linearization] | None = None
+
+    @property
+    def linearization(self) -> Linearization | None:
+        return None if self.linearize is None else self.linearize()
 
 
 @dataclass(frozen=True, eq=False)
@@ -258,17 +265,20 @@ def refine_on_board(
     X_WF_model = flange_poses(result.x)
     residuals = reprojection_residuals(sensors, X_WF_model, X_FC, X_WB)
     after = reprojection_residuals(sensors, corrected(X_WF_model, xi), X_FC, X_WB)
-    # The raw Jacobian at the solution (scipy's result.jac is rescaled by the robust loss).
-    J = approx_derivative(fun, result.x, f0=result.fun, sparsity=sparsity)
-    linearization = Linearization(
-        csr_matrix(J),
-        result.fun.copy(),
-        irls_weights(result.fun, settings.robust_loss, settings.robust_scale),
-        _row_pose(sensors, n, corrections),
-        n,
-        m,
-        corrections,
-    )
+
+    @functools.cache
+    def linearize() -> Linearization:
+        # The raw Jacobian at the solution (scipy's result.jac is rescaled by the robust loss).
+        J = approx_derivative(fun, result.x, f0=result.fun, sparsity=sparsity)
+        return Linearization(
+            csr_matrix(J),
+            result.fun.copy(),
+            irls_weights(result.fun, settings.robust_loss, settings.robust_scale),
+            _row_pose(sensors, n, corrections),
+            n,
+            m,
+            corrections,
+        )
     return Refinement(
         X_FC,
         X_WB,
@@ -280,7 +290,7 @@ def refine_on_board(
         covariance,
         params_of(result.x),
         estimated,
-        linearization,
+        linearize,
     )
 
 
