@@ -45,6 +45,12 @@ from reconstruction.registration.filtering import (
     filter_view,
     refiltered,
 )
+from reconstruction.registration.incremental import (
+    ArrivingPairs,
+    arrived_pairs,
+    outside_basin,
+    share_holding,
+)
 from reconstruction.registration.pairwise import (
     IcpConfig,
 )
@@ -240,6 +246,7 @@ def reconstruct_views(
     on_stage: StageListener | None = None,
     eyes_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
     fixtures: Sequence[FixtureLine] = (),
+    arriving: ArrivingPairs | None = None,
 ) -> ReconstructionResult:
     """The whole reconstruction on in-memory views (see the module docstring).
 
@@ -259,6 +266,8 @@ def reconstruct_views(
             the meshes are built.
         fixtures: the line of the rod each hanging hung from, in its own frame (one for all
             hangings, or one per hanging); the model is guarded against a strip along it.
+        arriving: the pairs registered while the views arrived (the view stream), used when
+            they are this run's first views with these clouds, X_FC and ICP settings.
 
     Returns:
         The views' poses (kinematic, registered, final), the registration edges, the X_FC used
@@ -287,7 +296,19 @@ def reconstruct_views(
     coarse = None
     X_FC_start = X_FC_nominal
     X_FC_filtered = X_FC_nominal  # the X_FC the clouds were cropped and cleaned with
-    if config.handeye.enabled and config.handeye.coarse.enabled and len(views) >= 3:
+    pairing = (config.icp.enabled or config.handeye.enabled) and len(views) >= 2
+    holding = None
+    if pairing:
+        with timer("icp"):
+            # Offline, or views the scan did not stream: pairwise ICP as if they arrived now.
+            arriving = arrived_pairs(arriving, views, clouds, groups, X_FC_filtered, config.icp)
+        holding = share_holding(arriving)
+    if (
+        config.handeye.enabled
+        and config.handeye.coarse.enabled
+        and len(views) >= 3
+        and (holding is None or holding < config.handeye.coarse.skip_when_pairs_hold)
+    ):
         with timer("handeye_coarse"):
             coarse = coarse_handeye(
                 clouds,
@@ -315,12 +336,15 @@ def reconstruct_views(
             _require_views(views, skipped, config)
             groups = group_positions(views, hangings or [[v.index for v in views]])
             X_FC_filtered = X_FC_start
+            if pairing:
+                with timer("icp"):
+                    arriving = arrived_pairs(None, views, clouds, groups, X_FC_start, config.icp)
         X_WF = [v.X_WF for v in views]
         X_WC_start = [X @ X_FC_start for X in X_WF]
         if (config.icp.enabled or config.handeye.enabled) and len(views) >= 2:
             indices = [v.index for v in views]
             registered = register_hangings(
-                clouds, X_WC_start, indices, groups, config.icp, config.pose_graph, timer
+                X_WC_start, indices, groups, config.icp, config.pose_graph, timer, arriving
             )
         X_WC = list(registered.X_WC) if registered.X_WC is not None else X_WC_start
         if not (config.handeye.enabled and len(views) >= 2):
@@ -337,7 +361,13 @@ def reconstruct_views(
                 X_FC_start,
             )
         X_FC = handeye.X_FC
-        if displacement_at(X_FC_start, X_FC, distance_m) <= config.handeye.round_tolerance_m:
+        kept = {(indices[e.source], indices[e.target]) for e in registered.kept_edges}
+        if displacement_at(X_FC_start, X_FC, distance_m) <= config.handeye.round_tolerance_m or (
+            config.icp.enabled
+            and not outside_basin(arriving, kept, indices, [X @ X_FC for X in X_WF])
+        ):
+            # From the corrected mount ICP would end where it ended on every kept pair: the
+            # same edges, the same correction.
             break
         X_FC_start = X_FC
     X_WC_kin = [X @ X_FC_nominal for X in X_WF]

@@ -83,13 +83,14 @@ def test_streamed_views_made_with_other_settings_are_not_used(streamed_scan, tmp
     stream.submit(scan.store.captured_indices()[0])
     streamed = stream.finish()
     processing = scan.config.processing
-    ready, filtered = _streamed_for(streamed, scan, processing, None, None)
+    ready, filtered, arriving = _streamed_for(streamed, scan, processing, None, None)
     assert len(ready) == 1 and len(filtered) == 1
+    assert arriving.arrived() == [(scan.store.captured_indices()[0], 0)]
     other = replace(processing, remove_margin_m=processing.remove_margin_m + 0.001)
-    assert _streamed_for(streamed, scan, other, None, None) == ({}, {})
+    assert _streamed_for(streamed, scan, other, None, None) == ({}, {}, None)
     X_FC = scan.X_FC_nominal.copy()
     X_FC[0, 3] += 1e-3
-    assert _streamed_for(streamed, scan, processing, X_FC, None) == ({}, {})
+    assert _streamed_for(streamed, scan, processing, X_FC, None) == ({}, {}, None)
 
 
 def test_hidden_time_is_the_work_that_fits_in_the_next_motion():

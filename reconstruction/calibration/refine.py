@@ -279,6 +279,7 @@ def refine_on_board(
             m,
             corrections,
         )
+
     return Refinement(
         X_FC,
         X_WB,

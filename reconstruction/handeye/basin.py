@@ -62,6 +62,10 @@ class CoarseHandEyeConfig:
     # each axis of C, both ways, and the best match fraction wins.
     good_match_fraction: float = 0.8
     restart_angle_rad: float = math.radians(10.0)
+    # The stage runs only when fewer than this share of the pairs registered at the nominal
+    # mount pass their edge checks: a mount within ICP's reach needs no rough search (on the
+    # default scans 93 of 94 pairs pass; a 25 mm / 6 deg mount fails most of them).
+    skip_when_pairs_hold: float = 0.8
 
     def __post_init__(self) -> None:
         check_fit_settings(self.loss, "handeye.coarse.loss", self.levels, "handeye.coarse.levels")
@@ -77,6 +81,11 @@ class CoarseHandEyeConfig:
                 "restart_angle_rad",
             ),
         )
+        if not 0.0 <= self.skip_when_pairs_hold <= 1.0:
+            raise ScannerError(
+                "handeye.coarse.skip_when_pairs_hold: must be within 0..1, got "
+                f"{self.skip_when_pairs_hold}"
+            )
         if not 0.0 <= self.good_match_fraction <= 1.0:
             raise ScannerError(
                 "handeye.coarse.good_match_fraction: must be within 0..1, got "

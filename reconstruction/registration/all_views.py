@@ -11,14 +11,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from reconstruction.common.stage_timer import StageTimer
-from reconstruction.registration.filtering import FilteredCloud
+from reconstruction.registration.incremental import ArrivingPairs, as_view_pairs, within_basin
 from reconstruction.registration.pairwise import (
     IcpConfig,
-    build_pyramid,
     edge_check,
     kinematic_X_TS,
     register_pair,
-    select_pairs,
 )
 from reconstruction.registration.posegraph import PoseEdge, PoseGraphConfig, optimise_pose_graph
 
@@ -54,31 +52,36 @@ class RegisteredViews:
 
 
 def register_views(
-    clouds: Sequence[FilteredCloud],
-    X_WC_kinematic: Sequence[np.ndarray],
+    X_WC_start: Sequence[np.ndarray],
     indices: Sequence[int],
     icp: IcpConfig,
     pose_graph: PoseGraphConfig,
     timer: StageTimer,
+    arriving: ArrivingPairs,
 ) -> RegisteredViews:
-    """Pair selection, pairwise ICP with edge checks, and the pose graph. With ICP off, only
-    the overlapping pairs (for the hand-eye refinement)."""
-    with timer("pairs"):
-        pyramids = [build_pyramid(c, icp) for c in clouds]
-        candidates = select_pairs(X_WC_kinematic, pyramids, icp)
+    """The pairs `arriving` chose among these views (capture `indices`), their registrations
+    (reused while the start X_WC_start puts them within ICP's basin of where they started,
+    else ICP again), edge checks and the pose graph. With ICP off, only the overlapping pairs
+    (for the hand-eye refinement)."""
+    position = {index: k for k, index in enumerate(indices)}
+    chosen = [p for p in arriving.pairs() if p.source in position and p.target in position]
+    candidates = as_view_pairs(chosen, position)
     pairs = tuple((p.source, p.target) for p in candidates)
     if not icp.enabled or not candidates:
         return RegisteredViews(pairs, None, (), ())
 
     registrations, edges = [], []
     with timer("icp"):
-        for p in candidates:
-            prior = kinematic_X_TS(X_WC_kinematic, p)
-            reg = register_pair(pyramids[p.source], pyramids[p.target], prior, icp)
-            why = edge_check(reg, prior, pyramids[p.source].centroid_C, icp)
+        for p, done in zip(candidates, chosen):
+            source, target = arriving.pyramid(done.source), arriving.pyramid(done.target)
+            prior = kinematic_X_TS(X_WC_start, p)
+            if done.registration is not None and within_basin(prior, done, source.centroid_C, icp):
+                reg = done.registration
+            else:
+                reg = register_pair(source, target, prior, icp)
+            why = edge_check(reg, prior, source.centroid_C, icp)
             registrations.append((p, reg, why))
             if not why:
-                centroid = pyramids[p.source].centroid_C
                 edges.append(
                     PoseEdge(
                         p.source,
@@ -86,12 +89,12 @@ def register_views(
                         reg.X_TS,
                         reg.information,
                         reg.n_correspondences,
-                        centroid,
+                        source.centroid_C,
                         p.kind,
                     )
                 )
     with timer("pose_graph"):
-        graph = optimise_pose_graph(X_WC_kinematic, edges, pose_graph)
+        graph = optimise_pose_graph(X_WC_start, edges, pose_graph)
     residual = {(r.source, r.target): r for r in graph.residuals}
     report = []
     for p, reg, why in registrations:
@@ -121,28 +124,28 @@ def register_views(
 
 
 def register_hangings(
-    clouds: Sequence[FilteredCloud],
     X_WC_kinematic: Sequence[np.ndarray],
     indices: Sequence[int],
     groups: Sequence[Sequence[int]],
     icp: IcpConfig,
     pose_graph: PoseGraphConfig,
     timer: StageTimer,
+    arriving: ArrivingPairs,
 ) -> RegisteredViews:
     """`register_views` within each hanging (views of different hangings saw the object in
     different places, so they are never paired), combined over all views."""
     if len(groups) == 1:
-        return register_views(clouds, X_WC_kinematic, indices, icp, pose_graph, timer)
+        return register_views(X_WC_kinematic, indices, icp, pose_graph, timer, arriving)
     pairs, edges, report = [], [], []
     X_WC = list(X_WC_kinematic)
     for group in groups:
         part = register_views(
-            [clouds[k] for k in group],
             [X_WC_kinematic[k] for k in group],
             [indices[k] for k in group],
             icp,
             pose_graph,
             timer,
+            arriving,
         )
         pairs += [(group[a], group[b]) for a, b in part.pairs]
         edges += [

@@ -8,6 +8,7 @@ optical frame D is (for the rectified left camera, X_CD = [R1^T, 0]).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -46,13 +47,17 @@ class DepthImage:
 @dataclass(frozen=True, eq=False)
 class ViewCloud:
     """One view: points (N, 3) in the left optical frame C (metres), colours (N, 3) uint8, the
-    measured flange pose X_WF (4x4), and optionally its depth map for TSDF fusion."""
+    measured flange pose X_WF (4x4), optionally its depth map for TSDF fusion, and when it
+    was captured."""
 
     index: int
     points_C: np.ndarray
     colors: np.ndarray
     X_WF: np.ndarray
     depth: DepthImage | None = None
+    # When the capture was taken (s, the capture's stamp): the order views arrive in, which
+    # pairwise registration follows (NaN: unknown, the list order counts).
+    stamp_s: float = math.nan
 
     def __post_init__(self) -> None:
         points = np.asarray(self.points_C, np.float64)

@@ -239,7 +239,14 @@ def run_scan_command(args: argparse.Namespace) -> int:
         out = args.out or Path("scans") / f"{name}-{stamp}"
     with ProgressBar("views") as bar:
         result = run_scan(
-            config, out, args.resume, args.force, bar.update, args.meshcat, show_stages=True
+            config,
+            out,
+            args.resume,
+            args.force,
+            bar.update,
+            args.meshcat,
+            show_stages=True,
+            on_model=lambda path: print(f"model: {path}", flush=True),
         )
     for line in scan_result_lines(result):
         print(line)

@@ -119,7 +119,7 @@ def capture_view(
                 f"{sensor.depth_scale_m} m"
             )
         cloud = view_rgbd_cloud(sensor, capture.depth, capture.left, X_WC, centre, radius)
-        view = ViewCloud(index, cloud.points_C, cloud.colors, X_WF, cloud.depth)
+        view = ViewCloud(index, cloud.points_C, cloud.colors, X_WF, cloud.depth, capture.stamp_s)
         return view, capture.q_rad
     if capture.left.shape[1::-1] != sensor.image_size:
         raise ScannerError(
@@ -127,7 +127,8 @@ def capture_view(
         )
     cloud = view_cloud(sensor, capture.left, capture.right, X_WC, centre, radius, params)
     depth = depth_image(sensor, cloud)
-    return ViewCloud(index, cloud.points_C, cloud.colors, X_WF, depth), capture.q_rad
+    view = ViewCloud(index, cloud.points_C, cloud.colors, X_WF, depth, capture.stamp_s)
+    return view, capture.q_rad
 
 
 def load_truth_of(scan_dir: Path):

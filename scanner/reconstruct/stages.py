@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
-from reconstruction.common.stage_timer import StageTimer
+from reconstruction.common.stage_timer import StageTimer, cpu_seconds
 from reconstruction.common.yaml_files import yaml_text
 from reconstruction.depth.camera_model import sensor_words
 from reconstruction.outputs import export_files, save_outputs, summary
@@ -55,6 +55,17 @@ from scanner.scan_dir.results_folder import free_results_dir, holds_result, stag
 log = logging.getLogger("scanner.reconstruct.stages")
 
 
+@dataclass(frozen=True)
+class ModelWritten:
+    """The results folder once the model's files were in it (before the pictures and the
+    truth's metrics), and when: time.perf_counter() and the process's CPU seconds."""
+
+    results_dir: Path
+    model: Path  # the primary surface's mesh
+    at_s: float
+    cpu_s: float
+
+
 @dataclass(frozen=True, eq=False)
 class ReconstructRun:
     result: ReconstructionResult
@@ -62,6 +73,7 @@ class ReconstructRun:
     results_dir: Path
     # Builds the scene of the results' 3D page (`add_model_page`); None once it is written.
     page_scene: Callable[[], object] | None = None
+    model_written: ModelWritten | None = None
 
 
 RECONSTRUCTION_MARKER = "reconstruction.yaml"
@@ -90,12 +102,11 @@ def _write_pictures(result, processing: ProcessingConfig, truth, out: Path):
     )
 
 
-def _write_results(
-    result, processing: ProcessingConfig, out: Path, eyes: dict[int, np.ndarray], pictures
+def _write_model(
+    result, processing: ProcessingConfig, out: Path, eyes: dict[int, np.ndarray]
 ) -> dict:
-    """Meshes, the fused cloud and reconstruction.yaml; their report keys with the pictures'
-    (`_write_pictures`). `eyes`: each view's camera centres at its final pose (kept with the
-    view: what it saw)."""
+    """Meshes, the fused cloud and reconstruction.yaml, and their report keys. `eyes`: each
+    view's camera centres at its final pose (kept with the view: what it saw)."""
     exports = prepare_exports(result.meshes, processing.mesh_export, processing.primary_surface)
     paths = save_outputs(result, out, processing.mesh_formats, exports)
     details = summary(result)
@@ -126,7 +137,6 @@ def _write_results(
             "rms_before_mm": 1e3 * refinement["rms_before_m"],
             "rms_after_mm": 1e3 * refinement["rms_after_m"],
         }
-    plots, deviation = pictures
     return {
         **converged,
         "X_FC_estimate": result.X_FC.tolist(),
@@ -134,8 +144,6 @@ def _write_results(
         "X_FC_change_deg": math.degrees(details["X_FC_change_rotation_rad"]),
         "outputs": {k: str(p.relative_to(out)) for k, p in paths.items()},
         "mesh_export": export_record(exports, export_files(exports, processing.mesh_formats)),
-        "plots": plots,
-        **({"deviation": deviation} if deviation else {}),
     }
 
 
@@ -175,6 +183,7 @@ def run_reconstruct(
     progress: bool = False,
     origin: dict[str, str] | None = None,
     page: bool = True,
+    on_model: Callable[[ModelWritten], None] | None = None,
 ) -> ReconstructRun:
     """Reconstruct a saved scan (a directory, or one already opened), or merge a list of opened
     scans into one model: every hanging of every scan aligned into the first one's frame
@@ -185,7 +194,8 @@ def run_reconstruct(
     `progress`: show the stages on stderr (when it is a terminal); `origin`: where the caller's
     X_FC and processing came from, for the summary (`X_FC_given`, `processing_from`);
     `page`: write the 3D page once the results are in place (else the caller does, with
-    `add_model_page`, e.g. after timing the reconstruction)."""
+    `add_model_page`, e.g. after timing the reconstruction); `on_model`: told as soon as the
+    model's files are in the results folder (the pictures and the truth's metrics follow)."""
     if isinstance(scan, list):
         scans = scan
     else:
@@ -195,7 +205,9 @@ def run_reconstruct(
     processing = processing or scans[0].config.processing
     display = _stage_display(scans) if progress else None
     try:
-        run = _reconstruct(scans, out, processing, X_FC, stereo, streamed, display, t0, origin)
+        run = _reconstruct(
+            scans, out, processing, X_FC, stereo, streamed, display, t0, origin, on_model
+        )
     finally:
         if display is not None:
             display.close()
@@ -218,7 +230,7 @@ def add_model_page(run: ReconstructRun) -> ReconstructRun:
     except OSError as e:
         log.warning("%s: the link to %s not added (%s)", out, PAGE_NAME, e)
         return replace(run, page_scene=None)
-    return ReconstructRun(run.result, report, out)
+    return ReconstructRun(run.result, report, out, None, run.model_written)
 
 
 def _stage_display(scans: list[SavedScan]):
@@ -228,13 +240,13 @@ def _stage_display(scans: list[SavedScan]):
 
 
 def _reconstruct(
-    scans, out, processing, X_FC, stereo, streamed, display, t0, origin
+    scans, out, processing, X_FC, stereo, streamed, display, t0, origin, on_model
 ) -> ReconstructRun:
     first = scans[0]
     config = with_roi_centre(processing.reconstruction, np.array(first.config.scan_center_m))
     on_stage = display.on_stage if display else None
     timer = StageTimer(on_stage=on_stage)
-    ready, filtered = _streamed_for(streamed, first, processing, X_FC, stereo)
+    ready, filtered, arriving = _streamed_for(streamed, first, processing, X_FC, stereo)
 
     with timer("stereo"):
         views = gather_views(
@@ -274,6 +286,7 @@ def _reconstruct(
                 on_stage,
                 eyes_of,
                 views.fixtures,
+                arriving,
             )
         truth_samples = sampling.result() if sampling is not None else None
 
@@ -285,10 +298,8 @@ def _reconstruct(
     }
     truth = views.truths[0]
     earlier = _earlier_report(out)
-    with staged_folder(out) as staging, ThreadPoolExecutor(max_workers=1) as beside:
-        # The pictures need only the result and the truth: they are drawn (Drake's renderer,
-        # matplotlib) while the model is measured (Open3D, numpy), on the other core.
-        pictures = beside.submit(_write_pictures, result, processing, truth, staging)
+    with staged_folder(out) as staging:
+        # The model first, as a whole: what the user waits for.
         eyes = {v.index: eyes_of(v.index, v.X_WC) for v in result.views}
         report["coverage_estimate"] = result.coverage.fraction
         report["unseen_area_m2"] = result.coverage.unseen_area_m2
@@ -298,39 +309,57 @@ def _reconstruct(
                 "watertight": mesh_quality(closed).watertight,
                 "filled_area_m2": closed.filled_area_m2,
             }
+        with timer("write"):
+            report.update(_write_model(result, processing, staging, eyes))
+            if hangings:
+                report.update(hangings_report(result, views, None))
+            report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
+            report["reconstruct_s"] = time.perf_counter() - t0
+            merged = {**earlier, **report}
+            merged["self_checks"] = self_check_record(merged)
+            _write_report(staging, merged)
+    mesh = f"mesh_{processing.primary_surface}."
+    primary = out / next((v for k, v in report["outputs"].items() if k.startswith(mesh)), "")
+    written = ModelWritten(out, primary, time.perf_counter(), cpu_seconds())
+    if on_model is not None:
+        on_model(written)
+    # Then what measures and shows it: the pictures (Drake's renderer, matplotlib) beside the
+    # truth's metrics (Open3D, numpy), written into the results folder with the report again.
+    with ThreadPoolExecutor(max_workers=1) as beside:
+        pictures = beside.submit(_write_pictures, result, processing, truth, out)
         if to_first is not None:
             with timer("evaluate"):
                 report.update(truth_metrics(result, views, processing, to_first, truth_samples))
-        if hangings:
-            with timer("hangings"):
+            if hangings:
                 report.update(hangings_report(result, views, to_first))
-        with timer("write"):
-            report.update(_write_results(result, processing, staging, eyes, pictures.result()))
-        report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
-        report["reconstruct_s"] = time.perf_counter() - t0
-        merged = {**earlier, **report}
-        merged["self_checks"] = self_check_record(merged)
-        _write_report(staging, merged)
+        plots, deviation = pictures.result()
+    report.update({"plots": plots, **({"deviation": deviation} if deviation else {})})
+    report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
+    report["model_written_s"] = written.at_s - t0
+    report["reconstruct_s"] = time.perf_counter() - t0
+    merged = {**earlier, **report}
+    merged["self_checks"] = self_check_record(merged)
+    _write_report(out, merged)
 
     def scene():
         model = stereo or first.camera_model
         return reconstruction_scene(result, views, processing, first, model, truth, truth_samples)
 
-    return ReconstructRun(result, merged, out, scene)
+    return ReconstructRun(result, merged, out, scene, written)
 
 
-def _streamed_for(streamed, scan: SavedScan, processing, X_FC, stereo) -> tuple[dict, dict]:
-    """The streamed views and filtered clouds of `scan` when they were made with the settings
-    of this run, else nothing (they are then computed again)."""
+def _streamed_for(streamed, scan: SavedScan, processing, X_FC, stereo) -> tuple[dict, dict, object]:
+    """The streamed views, filtered clouds and registered pairs of `scan` when they were made
+    with the settings of this run, else nothing (they are then computed again)."""
     if streamed is None:
-        return {}, {}
+        return {}, {}, None
     X = scan.X_FC_nominal if X_FC is None else X_FC
     if streamed.key != settings_key(scan, processing, X, stereo or scan.camera_model):
         log.info("per-view results of the scan were made with other settings: recomputed")
-        return {}, {}
+        return {}, {}, None
     ready = {i: (v.view, v.q_rad) for i, v in streamed.views.items()}
     filtered = {i: v.cloud for i, v in streamed.views.items() if v.cloud is not None}
-    return ready, filtered
+    return ready, filtered, streamed.arriving
 
 
 def _earlier_report(out: Path) -> dict:

@@ -1,6 +1,8 @@
 """Per-view work while the robot moves: stereo, cropping, robot/cell point removal and the
-outlier filter of each capture run on worker threads beside the capture loop, so that the
-reconstruction at the end of a scan only registers, corrects and builds surfaces.
+outlier filter of each capture run on worker threads beside the capture loop, and pairwise ICP
+of each view against the earlier views it overlaps on one more thread, in capture order
+(`reconstruction.registration.incremental`), so that the reconstruction at the end of a scan
+only optimises the pose graph, corrects the hand-eye transform and builds surfaces.
 
 The workers take each capture as it was stored (or read it back from the scan directory) and
 run exactly the functions the offline `scanner reconstruct` runs, with the scan's own camera
@@ -13,6 +15,7 @@ waits beyond that), so memory stays bounded however far they fall behind.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -24,6 +27,7 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.depth.camera_model import camera_model_to_dict
 from reconstruction.pipeline import VIEW_THREADS
 from reconstruction.registration.filtering import FilteredCloud, filter_view
+from reconstruction.registration.incremental import ArrivingPairs
 from reconstruction.registration.views import ViewCloud
 from scanner.configs.typed_yaml import to_dict
 from scanner.reconstruct.scan_views import (
@@ -62,11 +66,14 @@ class StreamedView:
 
 @dataclass(frozen=True, eq=False)
 class StreamedViews:
-    """What the worker finished: per capture index, and the captures it could not read."""
+    """What the workers finished: per capture index, the captures they could not read, and
+    the pairs registered as the views arrived (None when the scan registers no pairs)."""
 
     key: tuple
     views: dict[int, StreamedView] = field(default_factory=dict)
     failed: dict[int, str] = field(default_factory=dict)
+    arriving: ArrivingPairs | None = None
+    registration_s: dict[int, float] = field(default_factory=dict)
 
     def processing_s(self) -> dict[int, float]:
         return {i: v.seconds for i, v in self.views.items()}
@@ -93,18 +100,54 @@ class ViewStream:
             self._joints,
             processing.remove_margin_m,
         )
+        config = self._config
+        pairs = config.icp.enabled or config.handeye.enabled
         self._result = StreamedViews(
-            settings_key(scan, processing, scan.X_FC_nominal, scan.camera_model)
+            settings_key(scan, processing, scan.X_FC_nominal, scan.camera_model),
+            arriving=ArrivingPairs(config.icp, scan.X_FC_nominal) if pairs else None,
         )
         self._slots = threading.BoundedSemaphore(max_pending)
         self._pool = ThreadPoolExecutor(workers, thread_name_prefix="view-stream")
+        # One thread registers the views in the order they were submitted (capture order).
+        self._registrar = ThreadPoolExecutor(1, thread_name_prefix="view-pairs")
         self._futures: list[Future] = []
+        # The hanging the next submitted captures belong to (the scan's runner sets it).
+        self.hanging = 0
 
-    def submit(self, index: int, capture: Capture | None = None) -> None:
+    def submit_stored(self) -> None:
+        """A resumed scan: its captures so far, in capture order, before any new one, so
+        that the pairs are those an uninterrupted run registered (the workers read them back
+        from the files)."""
+        scan, store = self.scan, self.scan.store
+        hanging_of = {i: h for h, indices in enumerate(scan.hangings) for i in indices}
+        done = store.captured_indices()
+        stamps = {i: store.capture_stamp_s(i) for i in done}
+        for index in sorted(done, key=lambda i: (math.isnan(stamps[i]), stamps[i], i)):
+            self.submit(index, None, hanging_of.get(index, 0))
+
+    def submit(
+        self, index: int, capture: Capture | None = None, hanging: int | None = None
+    ) -> None:
         """Process capture `index`: the stored capture itself when given (no decoding of its
-        images again), else read back from the scan directory."""
-        self._slots.acquire()
-        self._futures.append(self._pool.submit(self._process, index, capture))
+        images again; at most `max_pending` such are waiting), else read back from the scan
+        directory; then register it against the earlier views of its hanging (`hanging`, else
+        the current one)."""
+        if capture is not None:
+            self._slots.acquire()
+        processed = self._pool.submit(self._process, index, capture)
+        self._futures.append(processed)
+        if self._result.arriving is not None:
+            h = self.hanging if hanging is None else hanging
+            self._futures.append(self._registrar.submit(self._register, index, h, processed))
+
+    def _register(self, index: int, hanging: int, processed: Future) -> None:
+        processed.result()
+        streamed = self._result.views.get(index)
+        if streamed is None or streamed.cloud is None:
+            return  # unreadable or nearly empty: the final stage decides about it
+        t0 = time.perf_counter()
+        self._result.arriving.add(index, hanging, streamed.cloud, streamed.view.X_WF)
+        self._result.registration_s[index] = time.perf_counter() - t0
 
     def _process(self, index: int, capture: Capture | None = None) -> None:
         t0 = time.perf_counter()
@@ -128,7 +171,8 @@ class ViewStream:
             # The final stage reads the capture again and reports it as offline runs do.
             self._result.failed[index] = str(e)
         finally:
-            self._slots.release()
+            if capture is not None:
+                self._slots.release()
 
     def so_far(self) -> StreamedViews:
         """What the workers made of every capture submitted so far (waits for them)."""
@@ -139,6 +183,7 @@ class ViewStream:
     def finish(self) -> StreamedViews:
         """Wait for every submitted capture; a programming error in the worker is raised here."""
         self._pool.shutdown(wait=True)
+        self._registrar.shutdown(wait=True)
         for f in self._futures:
             f.result()
         return self._result

@@ -98,6 +98,8 @@ class HangingRunner:
             if self.monitor is not None:
                 with self.timer("monitor_start"):
                     self.monitor.start(self.world)
+            if self.stream is not None:
+                self.stream.hanging = hanging  # its views are paired among themselves
             summaries.append(self._one_pass(set(self.hangings[hanging])))
             if self._aborted(summaries):
                 break

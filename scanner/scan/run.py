@@ -181,6 +181,7 @@ def run_scan(
     progress: Callable[[int, int], None] | None = None,
     meshcat: bool = False,
     show_stages: bool = False,
+    on_model: Callable[[Path], None] | None = None,
 ) -> ScanResult:
     """A new scan into `out_dir`, or continue the scan in `resume`.
 
@@ -195,6 +196,8 @@ def run_scan(
         progress: `progress(captured, total)` after each view.
         meshcat: show the arm, its paths and the growing cloud in Meshcat.
         show_stages: the reconstruction's stages on stderr (when it is a terminal).
+        on_model: `on_model(path)` as soon as the model's mesh is written (its pictures and
+            measurements follow).
 
     Returns:
         The scan directory and its report (`results/report.json`: the scan's and, when it
@@ -223,6 +226,8 @@ def run_scan(
         store.update_manifest(status="running")
     # Per-view work runs beside the capture loop when the scan reconstructs at its end.
     stream = ViewStream(saved or open_scan(store.root)) if config.reconstruct else None
+    if stream is not None and saved is not None:
+        stream.submit_stored()
     run = HangingRunner(config, world, store, views, live, viewer, timer, progress, stream)
     with interruptible(run), log_file(store.root / "scan.log"):
         try:
@@ -253,10 +258,14 @@ def run_scan(
                 streamed=streamed,
                 progress=show_stages,
                 page=False,
+                on_model=(lambda written: on_model(written.model)) if on_model else None,
             )
+        written = done.model_written
         waited = {
-            "after_last_capture_s": time.perf_counter() - last_capture_wall,
-            "after_last_capture_cpu_s": cpu_seconds() - last_capture_cpu,
+            # To the model's files: its pictures and measurements come after.
+            "after_last_capture_s": written.at_s - last_capture_wall,
+            "after_last_capture_cpu_s": written.cpu_s - last_capture_cpu,
+            "last_capture_to_results_s": time.perf_counter() - last_capture_wall,
         }
         # The 3D page after the model: its time is not the wait for the model.
         add_model_page(done)

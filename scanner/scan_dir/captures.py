@@ -16,6 +16,7 @@ killed scan leaves at most a `.tmp-*` folder, which is not a capture and is remo
 from __future__ import annotations
 
 import datetime
+import math
 import os
 import shutil
 from dataclasses import dataclass
@@ -247,6 +248,15 @@ class CaptureStore:
             meta["depth_size"] = [int(capture.depth.shape[1]), int(capture.depth.shape[0])]
             meta["depth_scale_m"] = float(capture.depth_scale_m)
         atomic_write_yaml(tmp / "capture.yaml", meta)
+
+    def capture_stamp_s(self, index: int) -> float:
+        """When capture `index` was taken (its metadata alone); NaN when unreadable (reading
+        the capture itself then says why)."""
+        try:
+            meta = _read_yaml(self.root / CAPTURES / _folder(index) / "capture.yaml", "capture")
+            return float(meta["stamp_s"])
+        except (ScannerError, KeyError, TypeError, ValueError):
+            return math.nan
 
     def read_capture(self, index: int) -> Capture:
         """One capture, validated; a damaged capture raises ScannerError naming the problem."""
