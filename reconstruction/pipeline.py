@@ -147,6 +147,8 @@ class ReconstructionResult:
     # when the caller tells where each view's cameras were (`reconstruct_views(eyes_of=)`).
     coverage: Coverage | None = None
     hanging_coverage: tuple[Coverage, ...] = ()
+    # Pairs registered before the reconstruction began (as the views arrived) and used.
+    pairs_before: int = 0
 
 
 def filter_views(
@@ -297,12 +299,15 @@ def reconstruct_views(
     X_FC_start = X_FC_nominal
     X_FC_filtered = X_FC_nominal  # the X_FC the clouds were cropped and cleaned with
     pairing = (config.icp.enabled or config.handeye.enabled) and len(views) >= 2
-    holding = None
+    holding, streamed = None, len(arriving.pairs()) if arriving is not None else 0
     if pairing:
         with timer("icp"):
             # Offline, or views the scan did not stream: pairwise ICP as if they arrived now.
-            arriving = arrived_pairs(arriving, views, clouds, groups, X_FC_filtered, config.icp)
-        holding = share_holding(arriving)
+            given, arriving = (
+                arriving,
+                arrived_pairs(arriving, views, clouds, groups, X_FC_filtered, config.icp),
+            )
+        holding, streamed = share_holding(arriving), streamed if arriving is given else 0
     if (
         config.handeye.enabled
         and config.handeye.coarse.enabled
@@ -460,6 +465,7 @@ def reconstruct_views(
         fused_nominal=fused_nominal,
         coverage=coverage[0] if coverage else None,
         hanging_coverage=tuple(coverage[1:]),
+        pairs_before=streamed,
     )
 
 

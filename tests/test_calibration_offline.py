@@ -287,7 +287,9 @@ def test_fewer_than_six_views_are_held_out_one_at_a_time(tmp_path):
 def test_robot_offsets_do_not_apply_to_eye_to_hand(tmp_path):
     r = _run("--eye-to-hand", "--robot-offsets", "--out", str(tmp_path))
     assert r.returncode == 2
-    assert r.stderr.strip().splitlines()[-1].endswith(
-        "--robot-offsets applies to eye-in-hand calibrations, not --eye-to-hand"
+    assert (
+        r.stderr.strip()
+        .splitlines()[-1]
+        .endswith("--robot-offsets applies to eye-in-hand calibrations, not --eye-to-hand")
     )
     assert "Traceback" not in r.stderr

@@ -294,6 +294,7 @@ def _reconstruct(
         "sensor": sensor_words(stereo or first.camera_model),
         "captures_used": len(views.views),
         "captures_skipped": views.skipped,
+        "pairs_registered_while_scanning": result.pairs_before,
         "settings": _settings(processing, first, origin or {}),
     }
     truth = views.truths[0]
