@@ -4,14 +4,17 @@
       ->  hand-eye: AX = XB on the graph's poses, joint X_FC refinement  (handeye.enabled)
       ->  final poses  ->  fused cloud  ->  surfaces (Poisson / TSDF / ball pivoting)
 
+The ICP pairs are registered in capture order (`registration.incremental`): a scan does it
+while its views arrive and hands them over (`arriving`); here the views it did not.
+
 The three variants the benchmark compares are the two flags: `pose_only` (neither), `icp`
 (registration only), `corrected` (both; the final poses are X_WF_i @ X_FC_corrected, optionally
 polished by one more pose graph with those as priors). One corrected run holds all three pose
 sets (`ViewResult.X_WC_kinematic`, `.X_WC_registered`, `.X_WC`) and the filtered clouds, so
 `build_surfaces` can mesh each variant without filtering and registering again.
 
-The stages are public (`filter_views`, `view_registration.register_views`, `correct_handeye`,
-`build_surfaces`) for a caller that writes files between them. No file I/O here:
+The stages are public (`registration.filtering.filter_views`, `registration.all_views.
+register_views`, `correct_handeye`, `build_surfaces`) for a caller that writes files between them. No file I/O here:
 `reconstruction.outputs` writes the files and the plain record of a result.
 """
 
@@ -42,7 +45,7 @@ from reconstruction.registration.filtering import (
     FilterCounts,
     FilteredCloud,
     RemovePoints,
-    filter_view,
+    filter_views,
     refiltered,
 )
 from reconstruction.registration.incremental import (
@@ -62,10 +65,6 @@ from reconstruction.surfaces.fixture import FixtureLine, without_fixture
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds, refine_fused
 from reconstruction.surfaces.meshes import DepthView, SurfaceInput, SurfaceMesh
 from reconstruction.surfaces.poisson_solver import start_solver
-
-# Views processed at a time (stereo, filtering): SGBM keeps both cores of the target machine
-# busy, the filters after it only one, so a second view's work fills the other core.
-VIEW_THREADS = 2
 
 
 @dataclass(frozen=True)
@@ -149,42 +148,6 @@ class ReconstructionResult:
     hanging_coverage: tuple[Coverage, ...] = ()
     # Pairs registered before the reconstruction began (as the views arrived) and used.
     pairs_before: int = 0
-
-
-def filter_views(
-    views: Sequence[ViewCloud],
-    X_FC_nominal: np.ndarray,
-    config: ReconstructionConfig,
-    remove_points: RemovePoints | None = None,
-    done: Mapping[int, FilteredCloud] | None = None,
-) -> tuple[list[ViewCloud], list[FilteredCloud], list[tuple[int, str]]]:
-    """Filter every view at its kinematic pose; views left with too few points are skipped
-    (reported), never fatal. Returns the kept views, their clouds, and (index, reason) skips.
-    `done`: clouds of some views already filtered exactly so (streamed during the scan)."""
-    kept_views, clouds, skipped = [], [], []
-    done = done or {}
-
-    def one(view: ViewCloud) -> FilteredCloud:
-        if view.index in done:
-            return done[view.index]
-        return filter_view(
-            view.index,
-            view.points_C,
-            view.colors,
-            view.X_WF @ X_FC_nominal,
-            config.filter,
-            remove_points,
-        )
-
-    with ThreadPoolExecutor(max_workers=VIEW_THREADS) as pool:
-        filtered = list(pool.map(one, views))
-    for view, cloud in zip(views, filtered):
-        if len(cloud) < config.filter.min_points:
-            skipped.append((view.index, f"{len(cloud)} points after filtering"))
-            continue
-        kept_views.append(view)
-        clouds.append(cloud)
-    return kept_views, clouds, skipped
 
 
 def build_surfaces(
@@ -291,7 +254,7 @@ def reconstruct_views(
     all_views = list(views)
     with timer("filter"):
         views, clouds, skipped = filter_views(
-            all_views, X_FC_nominal, config, remove_points, filtered
+            all_views, X_FC_nominal, config.filter, remove_points, filtered
         )
     _require_views(views, skipped, config)
     groups = group_positions(views, hangings or [[v.index for v in views]])
@@ -337,7 +300,9 @@ def reconstruct_views(
         if moved > config.handeye.coarse.refilter_above_m:
             # The crop and the robot's points are placed in W: redo them at the new poses.
             with timer("filter"):
-                views, clouds, skipped = filter_views(all_views, X_FC_start, config, remove_points)
+                views, clouds, skipped = filter_views(
+                    all_views, X_FC_start, config.filter, remove_points
+                )
             _require_views(views, skipped, config)
             groups = group_positions(views, hangings or [[v.index for v in views]])
             X_FC_filtered = X_FC_start

@@ -48,7 +48,8 @@ from peer_pipeline import PeerConfig, peer_reconstruct, peer_views, pose_change,
 from reconstruction.common.transforms import invert, transform_points
 from reconstruction.evaluation.metrics import TriangleSurface, evaluate_surface, handeye_error
 from reconstruction.evaluation.reference_alignment import align_reference
-from reconstruction.pipeline import filter_views, reconstruct_views
+from reconstruction.pipeline import reconstruct_views
+from reconstruction.registration.filtering import filter_views
 from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.reconstruct.evaluation import observed_samples, to_first_hanging, truth_metrics
 from scanner.reconstruct.scan_views import Gathered, gather_views, with_roi_centre
@@ -125,7 +126,9 @@ def run_peer(scan: SavedScan, gathered: Gathered, peer: PeerConfig, times: dict)
     processing = scan.config.processing
     config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
     with measured(times, "peer"):
-        views, clouds, _ = filter_views(gathered.views, scan.X_FC_nominal, config, gathered.remove)
+        views, clouds, _ = filter_views(
+            gathered.views, scan.X_FC_nominal, config.filter, gathered.remove
+        )
         prepared = peer_views(views, clouds, scan.X_FC_nominal, config.filter.roi, gathered.remove)
         result = peer_reconstruct(prepared, peer)
     return prepared, result

@@ -29,7 +29,7 @@ def _peer_module():
 
 def test_peer_mesh_near_truth(tiny_scan):
     from reconstruction.evaluation.metrics import TriangleSurface, evaluate_surface
-    from reconstruction.pipeline import filter_views
+    from reconstruction.registration.filtering import filter_views
     from scanner.reconstruct.evaluation import observed_samples, to_first_hanging
     from scanner.reconstruct.scan_views import gather_views, with_roi_centre
     from scanner.scan_dir.manifest import open_scan
@@ -39,7 +39,9 @@ def test_peer_mesh_near_truth(tiny_scan):
     processing = scan.config.processing
     config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
     gathered = gather_views([scan], processing)
-    views, clouds, _ = filter_views(gathered.views, scan.X_FC_nominal, config, gathered.remove)
+    views, clouds, _ = filter_views(
+        gathered.views, scan.X_FC_nominal, config.filter, gathered.remove
+    )
     prepared = peer.peer_views(views, clouds, scan.X_FC_nominal, config.filter.roi, gathered.remove)
     settings = peer.tutorial_scaled(scan.config.cell.object_size_m)
     result = peer.peer_reconstruct(prepared, settings)

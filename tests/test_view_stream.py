@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import yaml
 
-from reconstruction.pipeline import filter_views
+from reconstruction.registration.filtering import filter_views
 from reconstruction.stereo.rectification import compute_rectification
 from scanner.reconstruct.scan_views import capture_views, geometry_filter, with_roi_centre
 from scanner.reconstruct.stages import run_reconstruct
@@ -47,7 +47,7 @@ def test_streamed_views_equal_the_offline_ones(streamed_scan):
         offline.joints,
         processing.remove_margin_m,
     )
-    views, clouds, _ = filter_views(offline.views, scan.X_FC_nominal, config, remove)
+    views, clouds, _ = filter_views(offline.views, scan.X_FC_nominal, config.filter, remove)
     for view, cloud in zip(views, clouds):
         s = streamed.views[view.index]
         np.testing.assert_array_equal(s.view.points_C, view.points_C)

@@ -10,7 +10,8 @@ the cloud by up to ~10 mm at 0.5 m (1 deg of rotation alone is 8.7 mm).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,6 +20,7 @@ import open3d as o3d
 from reconstruction.common.checks import check_fields, integer, positive
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import transform_points
+from reconstruction.registration.views import ViewCloud
 
 # points_W (N, 3), view index -> keep mask (N,) bool. The robots package implements it with the
 # Drake geometry of the robot, tool, rod and cell at the view's recorded configuration.
@@ -220,3 +222,44 @@ def refiltered(
             counts.after_outliers - dropped,
         ),
     )
+
+
+# Views processed at a time (stereo, filtering): SGBM keeps both cores of the target machine
+# busy, the filters after it only one, so a second view's work fills the other core.
+VIEW_THREADS = 2
+
+
+def filter_views(
+    views: Sequence[ViewCloud],
+    X_FC_nominal: np.ndarray,
+    config: FilterConfig,
+    remove_points: RemovePoints | None = None,
+    done: Mapping[int, FilteredCloud] | None = None,
+) -> tuple[list[ViewCloud], list[FilteredCloud], list[tuple[int, str]]]:
+    """Filter every view at its kinematic pose; views left with too few points are skipped
+    (reported), never fatal. Returns the kept views, their clouds, and (index, reason) skips.
+    `done`: clouds of some views already filtered exactly so (streamed during the scan)."""
+    kept_views, clouds, skipped = [], [], []
+    done = done or {}
+
+    def one(view: ViewCloud) -> FilteredCloud:
+        if view.index in done:
+            return done[view.index]
+        return filter_view(
+            view.index,
+            view.points_C,
+            view.colors,
+            view.X_WF @ X_FC_nominal,
+            config,
+            remove_points,
+        )
+
+    with ThreadPoolExecutor(max_workers=VIEW_THREADS) as pool:
+        filtered = list(pool.map(one, views))
+    for view, cloud in zip(views, filtered):
+        if len(cloud) < config.min_points:
+            skipped.append((view.index, f"{len(cloud)} points after filtering"))
+            continue
+        kept_views.append(view)
+        clouds.append(cloud)
+    return kept_views, clouds, skipped

@@ -16,7 +16,8 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.depth.camera_model import CameraModel, RgbdCamera
 from reconstruction.depth.cloud import view_rgbd_cloud
 from reconstruction.evaluation.metrics import TriangleSurface
-from reconstruction.pipeline import VIEW_THREADS, ReconstructionConfig, filter_views
+from reconstruction.pipeline import ReconstructionConfig
+from reconstruction.registration.filtering import VIEW_THREADS, filter_views
 from reconstruction.registration.views import ViewCloud
 from reconstruction.stereo.cloud import depth_image, view_cloud
 from reconstruction.stereo.params import StereoParams
@@ -242,7 +243,7 @@ def model_so_far(
     config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
     captured = capture_views(scan, prepare_sensor(stereo), X_FC, processing.stereo, indices)
     remove = geometry_filter(scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m)
-    views, clouds, _ = filter_views(captured.views, X_FC, config, remove)
+    views, clouds, _ = filter_views(captured.views, X_FC, config.filter, remove)
     X_WC = [v.X_WF @ X_FC for v in views]
     fused = fuse_clouds(clouds, X_WC, config.surfaces.fused_voxel_size_m)
     return fused, [X[:3, 3] for X in X_WC]

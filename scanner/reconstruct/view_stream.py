@@ -25,8 +25,7 @@ import numpy as np
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.depth.camera_model import camera_model_to_dict
-from reconstruction.pipeline import VIEW_THREADS
-from reconstruction.registration.filtering import FilteredCloud, filter_view
+from reconstruction.registration.filtering import VIEW_THREADS, FilteredCloud, filter_view
 from reconstruction.registration.incremental import ArrivingPairs
 from reconstruction.registration.views import ViewCloud
 from scanner.configs.typed_yaml import to_dict

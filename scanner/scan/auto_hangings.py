@@ -20,8 +20,8 @@ from reconstruction.common.transforms import invert, rotate_vectors, transform_p
 from reconstruction.evaluation.coverage import SeenSurface, seen_surface
 from reconstruction.evaluation.metrics import SurfaceSamples, TriangleSurface
 from reconstruction.hangings.alignment import SeenSpace, align_pass
-from reconstruction.pipeline import filter_views, reconstruct_views
-from reconstruction.registration.filtering import o3d_cloud, refiltered
+from reconstruction.pipeline import reconstruct_views
+from reconstruction.registration.filtering import filter_views, o3d_cloud, refiltered
 from reconstruction.surfaces.fixture import without_fixture
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds
 from scanner.configs.scan import ScanConfig
@@ -93,7 +93,7 @@ class HangingAssessor:
         remove = geometry_filter(
             scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m
         )
-        views, clouds, _ = filter_views(captured.views, X_FC, config, remove, done)
+        views, clouds, _ = filter_views(captured.views, X_FC, config.filter, remove, done)
         return views, clouds, remove, config
 
     def _quick(self, indices: list[int]) -> QuickPass:
