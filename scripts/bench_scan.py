@@ -49,9 +49,15 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--views", type=int, default=24)
     parser.add_argument("--object", default="vase")
+    parser.add_argument(
+        "--hangings",
+        type=int,
+        default=1,
+        help="passes over the object, re-hung between them (default 1)",
+    )
     args = parser.parse_args()
     config = with_overrides(
-        ScanConfig(), object_spec=args.object, views=args.views, seed=0, hangings=1
+        ScanConfig(), object_spec=args.object, views=args.views, seed=0, hangings=args.hangings
     )
     with tempfile.TemporaryDirectory() as tmp:
         cpu_start = cpu_seconds()
@@ -82,6 +88,9 @@ def main() -> None:
                 "processing_hidden_s": round(r.get("processing_hidden_s", 0.0), 2),
                 "peak_rss_mb": round(peak_mb, 1),
                 "peak_rss_child_mb": round(child_peak_mb, 1),
+                "hangings": args.hangings,
+                "pairs_registered_while_scanning": r.get("pairs_registered_while_scanning"),
+                "last_capture_to_results_s": round(r.get("last_capture_to_results_s", -1.0), 2),
                 "views_captured": r["views_captured"],
                 "views_planned": r["views_planned"],
                 "cpu_s": round(cpu_s, 1),

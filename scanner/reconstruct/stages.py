@@ -14,7 +14,6 @@ results folder (captures are never modified):
 
 from __future__ import annotations
 
-import importlib
 import json
 import logging
 import math
@@ -260,35 +259,26 @@ def _reconstruct(
     X_FC = first.X_FC_nominal if X_FC is None else X_FC
     hangings = views.hangings if len(views.hangings) > 1 else None
     to_first = to_first_hanging(views)
-    with ThreadPoolExecutor(max_workers=1) as beside:
-        # The truth's side of the evaluation (ray casting from every true view) needs no
-        # result: it runs while the views are registered, which leaves a core idle at times.
-        sampling = (
-            beside.submit(observed_samples, views, processing, to_first)
-            if to_first is not None
-            else None
+
+    def eyes_of(index: int, X_WC: np.ndarray) -> np.ndarray:
+        # A view saw what both of its cameras saw.
+        return (stereo or scans[views.scan_of[index]].camera_model).eye_centres_W(X_WC)
+
+    # Nothing of the evaluation runs beside the model's stages: it would take the cores the
+    # Poisson solve and the hand-eye fit wait for.
+    with timer("reconstruct"):
+        result = reconstruct_views(
+            views.views,
+            X_FC,
+            config,
+            views.remove,
+            hangings,
+            filtered,
+            on_stage,
+            eyes_of,
+            views.fixtures,
+            arriving,
         )
-        # So is loading the plotting library (3 s), which the pictures at the end would wait for.
-        beside.submit(importlib.import_module, "scanner.reports.plots")
-
-        def eyes_of(index: int, X_WC: np.ndarray) -> np.ndarray:
-            # A view saw what both of its cameras saw.
-            return (stereo or scans[views.scan_of[index]].camera_model).eye_centres_W(X_WC)
-
-        with timer("reconstruct"):
-            result = reconstruct_views(
-                views.views,
-                X_FC,
-                config,
-                views.remove,
-                hangings,
-                filtered,
-                on_stage,
-                eyes_of,
-                views.fixtures,
-                arriving,
-            )
-        truth_samples = sampling.result() if sampling is not None else None
 
     report: dict = {
         "sensor": sensor_words(stereo or first.camera_model),
@@ -326,10 +316,13 @@ def _reconstruct(
         on_model(written)
     # Then what measures and shows it: the pictures (Drake's renderer, matplotlib) beside the
     # truth's metrics (Open3D, numpy), written into the results folder with the report again.
+    truth_samples = None
     with ThreadPoolExecutor(max_workers=1) as beside:
         pictures = beside.submit(_write_pictures, result, processing, truth, out)
         if to_first is not None:
             with timer("evaluate"):
+                # The truth's side (ray casting from every true view), then the surfaces on it.
+                truth_samples = observed_samples(views, processing, to_first)
                 report.update(truth_metrics(result, views, processing, to_first, truth_samples))
             if hangings:
                 report.update(hangings_report(result, views, to_first))

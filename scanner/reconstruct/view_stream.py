@@ -8,8 +8,11 @@ The workers take each capture as it was stored (or read it back from the scan di
 run exactly the functions the offline `scanner reconstruct` runs, with the scan's own camera
 model, X_FC and processing settings: the streamed views are what the offline run would
 compute, and the reconstruction uses them only when those three are still the ones it
-reconstructs with. At most `max_pending` captures are with the workers (the capture loop
-waits beyond that), so memory stays bounded however far they fall behind.
+reconstructs with. At most `max_pending` captures are being processed or registered (the
+capture loop waits beyond that, one per worker by default), so memory stays bounded and the
+work left when the last picture is taken is that of two views at most. Unbounded, the single
+registration thread fell ten views behind on the simulator, whose captures come faster than a
+robot's (6 s of the wait after the last picture).
 """
 
 from __future__ import annotations
@@ -82,7 +85,7 @@ class ViewStream:
     """`submit(index)` after each stored capture; `finish()` waits and returns the results."""
 
     def __init__(
-        self, scan: SavedScan, max_pending: int = VIEW_THREADS + 1, workers: int = VIEW_THREADS
+        self, scan: SavedScan, max_pending: int = VIEW_THREADS, workers: int = VIEW_THREADS
     ) -> None:
         self.scan = scan
         processing = scan.config.processing
@@ -131,24 +134,32 @@ class ViewStream:
         images again; at most `max_pending` such are waiting), else read back from the scan
         directory; then register it against the earlier views of its hanging (`hanging`, else
         the current one)."""
-        if capture is not None:
+        # A capture in memory holds a slot until its view is registered (processed, when
+        # nothing is registered): the capture loop waits while the per-view work lags.
+        held = capture is not None
+        if held:
             self._slots.acquire()
-        processed = self._pool.submit(self._process, index, capture)
+        registering = self._result.arriving is not None
+        processed = self._pool.submit(self._process, index, capture, held and not registering)
         self._futures.append(processed)
-        if self._result.arriving is not None:
+        if registering:
             h = self.hanging if hanging is None else hanging
-            self._futures.append(self._registrar.submit(self._register, index, h, processed))
+            self._futures.append(self._registrar.submit(self._register, index, h, processed, held))
 
-    def _register(self, index: int, hanging: int, processed: Future) -> None:
-        processed.result()
-        streamed = self._result.views.get(index)
-        if streamed is None or streamed.cloud is None:
-            return  # unreadable or nearly empty: the final stage decides about it
-        t0 = time.perf_counter()
-        self._result.arriving.add(index, hanging, streamed.cloud, streamed.view.X_WF)
-        self._result.registration_s[index] = time.perf_counter() - t0
+    def _register(self, index: int, hanging: int, processed: Future, release: bool) -> None:
+        try:
+            processed.result()
+            streamed = self._result.views.get(index)
+            if streamed is None or streamed.cloud is None:
+                return  # unreadable or nearly empty: the final stage decides about it
+            t0 = time.perf_counter()
+            self._result.arriving.add(index, hanging, streamed.cloud, streamed.view.X_WF)
+            self._result.registration_s[index] = time.perf_counter() - t0
+        finally:
+            if release:
+                self._slots.release()
 
-    def _process(self, index: int, capture: Capture | None = None) -> None:
+    def _process(self, index: int, capture: Capture | None = None, release: bool = False) -> None:
         t0 = time.perf_counter()
         try:
             view, q = capture_view(
@@ -170,7 +181,7 @@ class ViewStream:
             # The final stage reads the capture again and reports it as offline runs do.
             self._result.failed[index] = str(e)
         finally:
-            if capture is not None:
+            if release:
                 self._slots.release()
 
     def so_far(self) -> StreamedViews:
