@@ -115,8 +115,10 @@ def variant_config(config: ReconstructionConfig, variant: str) -> Reconstruction
 
 @dataclass(frozen=True, eq=False)
 class ViewResult:
-    """One view's poses: kinematic (nominal X_FC), after the pose graph (None without ICP),
-    and the final one the outputs use."""
+    """One view's poses: kinematic (nominal X_FC, in its hanging's frame), after the last
+    registration round's pose graph (None without ICP; started from the mount of that round,
+    so it lies between the robot's poses and the registered ones), and the final one the
+    outputs use."""
 
     index: int
     counts: FilterCounts

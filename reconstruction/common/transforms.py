@@ -152,3 +152,11 @@ def check_pose(X: np.ndarray, name: str) -> np.ndarray:
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
         raise ScannerError(f"{name}: the rotation block is not a rotation matrix")
     return X
+
+
+def snapped(X: np.ndarray, X_ref: np.ndarray, step: float = 1e-9) -> np.ndarray:
+    """X with its difference from X_ref (rotation vector in rad, translation in m) rounded to
+    multiples of `step`: two poses apart by rounding noise far below the step become the very
+    same pose, unless they straddle a multiple (odds about noise / step per component)."""
+    xi = pose_to_twist(invert(X_ref) @ X)
+    return X_ref @ twist_to_pose(np.round(xi / step) * step)

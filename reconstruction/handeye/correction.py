@@ -25,7 +25,7 @@ import numpy as np
 
 from reconstruction.calibration.hand_eye import HAND_EYE_METHODS, HandEyeMethodError, solve_hand_eye
 from reconstruction.common.checks import require_choice, require_count, require_positive
-from reconstruction.common.transforms import invert, mean_pose, pose_difference
+from reconstruction.common.transforms import invert, mean_pose, pose_difference, snapped
 from reconstruction.handeye.basin import CoarseHandEyeConfig
 from reconstruction.handeye.diagnosis import ConvergenceLimits, HandEyeDiagnosis, diagnose
 from reconstruction.handeye.refine import (
@@ -256,6 +256,11 @@ def correct_handeye(
     refinement = None
     X_FC = X_start
     if config.refine and pairs:
+        # Open3D's ICP sums in no fixed order: AX = XB on its poses differs between runs of
+        # the same scan in the last bits, and the refinement (which stops within a tolerance)
+        # would carry that into X_FC and on to the Poisson octree. From a start snapped to a
+        # nanometre/nanoradian grid a second run gives the very same model.
+        X_start = snapped(X_start, X_FC_nominal)
         refinement = refine_on_clouds(clouds, X_WF, pairs, X_start, config.fine_fit)
         if plausible_correction(refinement.X_FC, X_FC_nominal, config):
             X_FC, source = refinement.X_FC, "refined"

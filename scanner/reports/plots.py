@@ -19,17 +19,21 @@ from reconstruction.pipeline import ReconstructionResult  # noqa: E402
 
 
 def per_view_residuals(result: ReconstructionResult) -> list[dict]:
-    """Per view, where registration placed it against where the robot says it is (mm, deg):
-    `nominal_*` with the nominal X_FC (the mount error shows in every view alike), `estimated_*`
-    with the estimated X_FC (what is left per view: the robot's own per-pose errors and ICP
-    noise). Empty without registration."""
+    """Per view, where the reconstruction placed it against where the robot says it is (mm,
+    deg): `nominal_*` with the nominal X_FC (the mount error shows in every view alike),
+    `estimated_*` with the estimated X_FC (what is left per view: the robot's own per-pose
+    errors and ICP noise). The placed pose is the final one, taken back into the view's own
+    hanging's frame (where the robot's poses are). Empty without registration."""
     to_estimate = invert(result.X_FC_nominal) @ result.X_FC
+    # Each hanging's frame -> the first's; the final poses are in the first hanging's frame.
+    T_of = [np.eye(4), *(a.T for a in result.alignments)]
     rows = []
     for v in result.views:
         if v.X_WC_registered is None:
             return []
-        nominal_t, nominal_r = pose_difference(v.X_WC_kinematic, v.X_WC_registered)
-        left_t, left_r = pose_difference(v.X_WC_kinematic @ to_estimate, v.X_WC_registered)
+        X_WC_placed = invert(T_of[v.hanging]) @ v.X_WC
+        nominal_t, nominal_r = pose_difference(v.X_WC_kinematic, X_WC_placed)
+        left_t, left_r = pose_difference(v.X_WC_kinematic @ to_estimate, X_WC_placed)
         rows.append(
             {
                 "index": v.index,
