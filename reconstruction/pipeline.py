@@ -14,8 +14,9 @@ sets (`ViewResult.X_WC_kinematic`, `.X_WC_registered`, `.X_WC`) and the filtered
 `build_surfaces` can mesh each variant without filtering and registering again.
 
 The stages are public (`registration.filtering.filter_views`, `registration.all_views.
-register_views`, `correct_handeye`, `build_surfaces`) for a caller that writes files between them. No file I/O here:
-`reconstruction.outputs` writes the files and the plain record of a result.
+register_views`, `correct_handeye`, `build_surfaces`) for a caller that writes files between
+them. No file I/O here: `reconstruction.outputs` writes the files and the plain record of a
+result.
 """
 
 from __future__ import annotations

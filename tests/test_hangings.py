@@ -167,7 +167,7 @@ def test_hypotheses_that_start_or_end_alike_are_refined_and_scored_once(monkeypa
     apart[:3, 3] += 0.004  # starts elsewhere, ends where the first did
     starts = [T_true, T_true.copy(), near, apart]
     monkeypatch.setattr(pa, "feature_hypotheses", lambda *a: [s.copy() for s in starts])
-    monkeypatch.setattr(pa, "rotation_grid_hypotheses", lambda *a: [])
+    monkeypatch.setattr(pa, "rotation_grid_hypotheses", lambda *a, **k: [])
     refined, scored = [], []
     refine, violation = pa._refine, pa.free_space_violation
     monkeypatch.setattr(pa, "_refine", lambda *a: refined.append(1) or refine(*a))
@@ -214,6 +214,34 @@ def test_ransac_on_features_matched_once_gives_the_libraries_hypotheses():
         )
         np.testing.assert_array_equal(got[1 + run], np.asarray(expected.transformation))
     assert len({g.tobytes() for g in got[1:]}) > 1  # the runs differ: the seeds were used
+
+
+def test_the_texture_tells_the_true_turn_of_a_fluted_vase(monkeypatch):
+    """A fluted vase fits itself turned about its axis (by a flute, or by any angle on its
+    smooth parts): the overlap alone keeps one such fit of the rotation grid by chance. The
+    grid also keeps its best fits by texture: with the features left out and one fit kept per
+    ranking, the true turn is found and verified."""
+    import reconstruction.hangings.alignment as pa
+
+    mesh = resolve_object("vase", 0.2)
+    X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
+    X1 = hung_pose(X0, 0, 1)
+    ref, ref_colors = _partial_cloud(mesh.vertices, mesh.triangles, X0, 0, _stripes)
+    moved, colors = _partial_cloud(mesh.vertices, mesh.triangles, X1, 1, _stripes)
+    monkeypatch.setattr(pa, "feature_hypotheses", lambda *a: [])
+    config = AlignmentConfig(coarse_starts_kept=1)
+    a = pa.align_pass(1, moved, ref, SeenSpace((), ()), config, colors, ref_colors)
+    assert a.verified, a.failures
+    T_true = X0 @ np.linalg.inv(X1)
+    moved_m, turned_rad = alignment_error(a.T, T_true, mesh.vertices @ X1[:3, :3].T + X1[:3, 3])
+    assert moved_m < 0.002 and math.degrees(turned_rad) < 1.0
+    # Without the texture the same grid keeps its best fit by overlap alone: not the true turn.
+    shape_only = pa.align_pass(1, moved, ref, SeenSpace((), ()), config)
+    assert (
+        alignment_error(shape_only.T, T_true, mesh.vertices @ X1[:3, :3].T + X1[:3, 3])[1]
+        > (math.radians(5.0))
+        or not shape_only.verified
+    )
 
 
 def test_a_symmetric_object_is_refused_as_ambiguous():
