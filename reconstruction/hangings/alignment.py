@@ -26,6 +26,7 @@ import numpy as np
 
 from reconstruction.common.checks import check_fields, fraction, integer, positive
 from reconstruction.common.transforms import invert, rotation_angle_rad, transform_points
+from reconstruction.hangings.symmetry import sibling_starts
 from reconstruction.registration.pairwise import correction_at
 from reconstruction.registration.views import DepthImage
 
@@ -327,7 +328,7 @@ def align_pass(
             )
             return fit.overlap * max(fit.colour_agreement, 0.0)
 
-    for T0 in starts + rotation_grid_hypotheses(source, target, config, textured_score):
+    def consider(T0: np.ndarray) -> None:
         # Hypotheses often agree (RANSAC runs finding the same answer): one that starts, or
         # ends, where an earlier one did is that one again, and costs no second evaluation.
         same = next((c for S, c in refined_from if _same_pose(T0, S, centre, SAME_START)), None)
@@ -349,6 +350,15 @@ def align_pass(
             same = (_score(fit, violation), T, fit, violation)
         refined_from.append((T0, same))
         candidates.append(same)
+
+    for T0 in starts + rotation_grid_hypotheses(source, target, config, textured_score):
+        consider(T0)
+    # The shape's symmetric orientations that no generator reached: the texture decides
+    # between them, and a runner-up among them makes an untextured shape ambiguous.
+    distinct = {id(c): c for c in candidates}.values()
+    shape_fits = [(c[2].overlap * (1.0 - c[3]), c[1]) for c in distinct]
+    for T0 in sibling_starts(shape_fits, config.distinct_rotation_rad):
+        consider(T0)
     candidates.sort(key=lambda c: -c[0])
     best_score, T, fit, violation = candidates[0]
     overlap, rms = fit.overlap, fit.inlier_rms_m
