@@ -19,7 +19,6 @@ import yaml
 from reconstruction.common.transforms import (
     make_pose,
     rotation_about,
-    rotation_angle_rad,
     transform_points,
 )
 from reconstruction.hangings.alignment import (
@@ -34,6 +33,7 @@ from robots.models.objects import resolve_object
 from robots.models.workcell import placed_object
 from robots.simulation.operator import hanging_rotation, hung_pose
 from tests.conftest import shared_data
+from tests.partial_clouds import other_stripes, partial_cloud, stripes
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -82,46 +82,16 @@ def test_free_space_counts_points_in_front_of_what_a_view_measured():
     assert free_space_violation(half, seen, 0.003) == pytest.approx(0.5)
 
 
-def _partial_cloud(vertices, triangles, X, seed: int, texture=None):
-    """Surface samples of the object placed at X, only its lower 70 % (a hung object seen
-    from below), with 0.2 mm noise: what one pass of a scan measures. With `texture` (object
-    frame points -> grey), also their colours."""
-    import open3d as o3d
-
-    mesh = o3d.geometry.TriangleMesh(
-        o3d.utility.Vector3dVector(np.array(vertices, np.float64)),
-        o3d.utility.Vector3iVector(np.array(triangles, np.int32)),
-    )
-    o3d.utility.random.seed(seed)
-    p_O = np.asarray(mesh.sample_points_uniformly(60_000).points)
-    p = transform_points(X, p_O)
-    z = p[:, 2]
-    keep = z < z.min() + 0.7 * np.ptp(z)
-    points = p[keep] + np.random.default_rng(seed).normal(0, 0.0002, (keep.sum(), 3))
-    if texture is None:
-        return points
-    grey = np.clip(texture(p_O[keep]), 0, 255).astype(np.uint8)
-    return points, np.repeat(grey[:, None], 3, axis=1)
-
-
-def _stripes(p_O: np.ndarray) -> np.ndarray:
-    return 128 + 100 * np.sin(p_O[:, 0] / 0.006) * np.cos(p_O[:, 1] / 0.009)
-
-
-def _other_stripes(p_O: np.ndarray) -> np.ndarray:
-    return 128 + 100 * np.sin(p_O[:, 2] / 0.004 + 1.0)
-
-
 def test_the_texture_must_agree_another_object_of_the_same_shape_is_refused():
     mesh = resolve_object("pebble", 0.2)
     X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
     X1 = hung_pose(X0, 3, 1)
-    ref, ref_colors = _partial_cloud(mesh.vertices, mesh.triangles, X0, 0, _stripes)
-    same, same_colors = _partial_cloud(mesh.vertices, mesh.triangles, X1, 1, _stripes)
+    ref, ref_colors = partial_cloud(mesh.vertices, mesh.triangles, X0, 0, stripes)
+    same, same_colors = partial_cloud(mesh.vertices, mesh.triangles, X1, 1, stripes)
     a = align_pass(1, same, ref, SeenSpace((), ()), AlignmentConfig(), same_colors, ref_colors)
     assert a.verified, a.failures
     assert a.colour_agreement > 0.5
-    other, other_colors = _partial_cloud(mesh.vertices, mesh.triangles, X1, 1, _other_stripes)
+    other, other_colors = partial_cloud(mesh.vertices, mesh.triangles, X1, 1, other_stripes)
     b = align_pass(1, other, ref, SeenSpace((), ()), AlignmentConfig(), other_colors, ref_colors)
     # Refused. Which check refuses it depends on which hypothesis scores best, and Open3D's
     # multi-threaded RANSAC proposes different ones from run to run: the true pose scores near
@@ -149,8 +119,8 @@ def test_two_hangings_of_an_asymmetric_object_align_within_a_fraction_of_a_mm(na
     mesh = resolve_object(name, 0.2)
     X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
     X1 = hung_pose(X0, 3, 1)
-    reference = _partial_cloud(mesh.vertices, mesh.triangles, X0, 0)
-    moved = _partial_cloud(mesh.vertices, mesh.triangles, X1, 1)
+    reference = partial_cloud(mesh.vertices, mesh.triangles, X0, 0)
+    moved = partial_cloud(mesh.vertices, mesh.triangles, X1, 1)
     T_true = X0 @ np.linalg.inv(X1)
     a = align_pass(1, moved, reference, SeenSpace((), ()))
     assert a.verified, a.failures
@@ -164,8 +134,8 @@ def test_hypotheses_that_start_or_end_alike_are_refined_and_scored_once(monkeypa
     mesh = resolve_object("pebble", 0.2)
     X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
     X1 = hung_pose(X0, 3, 1)
-    reference = _partial_cloud(mesh.vertices, mesh.triangles, X0, 0)
-    moved = _partial_cloud(mesh.vertices, mesh.triangles, X1, 1)
+    reference = partial_cloud(mesh.vertices, mesh.triangles, X0, 0)
+    moved = partial_cloud(mesh.vertices, mesh.triangles, X1, 1)
     T_true = X0 @ np.linalg.inv(X1)
     near, apart = T_true.copy(), T_true.copy()
     near[:3, 3] += 0.0005  # starts where the first did
@@ -195,8 +165,8 @@ def test_ransac_on_features_matched_once_gives_the_libraries_hypotheses():
     X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
     X1 = hung_pose(X0, 3, 1)
     config = AlignmentConfig(runs=4, ransac_iterations=2000)
-    source, src_f = prepared_features(_partial_cloud(mesh.vertices, mesh.triangles, X1, 1), 0.003)
-    target, tgt_f = prepared_features(_partial_cloud(mesh.vertices, mesh.triangles, X0, 0), 0.003)
+    source, src_f = prepared_features(partial_cloud(mesh.vertices, mesh.triangles, X1, 1), 0.003)
+    target, tgt_f = prepared_features(partial_cloud(mesh.vertices, mesh.triangles, X0, 0), 0.003)
     got = feature_hypotheses(source, target, src_f, tgt_f, config)
     distance = 1.5 * config.voxel_m
     for run in range(config.runs):
@@ -221,80 +191,6 @@ def test_ransac_on_features_matched_once_gives_the_libraries_hypotheses():
     assert len({g.tobytes() for g in got[1:]}) > 1  # the runs differ: the seeds were used
 
 
-def _fluted_vase_passes(seed: int):
-    mesh = resolve_object("vase", 0.2)
-    X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
-    X1 = hung_pose(X0, seed, 1)
-    ref, ref_colors = _partial_cloud(mesh.vertices, mesh.triangles, X0, 0, _stripes)
-    moved, colors = _partial_cloud(mesh.vertices, mesh.triangles, X1, 1, _stripes)
-    object_points = transform_points(X1, mesh.vertices)
-    return (moved, colors), (ref, ref_colors), X0 @ np.linalg.inv(X1), object_points
-
-
-def test_the_texture_ranks_the_rotation_grid_fits_of_a_fluted_vase(monkeypatch):
-    """A fluted vase fits itself turned about its axis by a flute: the overlap alone keeps
-    one such fit of the rotation grid by chance. The grid also keeps its best fits by texture:
-    with the features left out and one fit kept per ranking, the true turn is found."""
-    import reconstruction.hangings.alignment as pa
-
-    (moved, colors), (ref, ref_colors), T_true, object_points = _fluted_vase_passes(0)
-    monkeypatch.setattr(pa, "feature_hypotheses", lambda *a: [])
-    config = AlignmentConfig(coarse_starts_kept=1)
-    a = pa.align_pass(1, moved, ref, SeenSpace((), ()), config, colors, ref_colors)
-    assert a.verified, a.failures
-    moved_m, turned_rad = alignment_error(a.T, T_true, object_points)
-    assert moved_m < 0.002 and math.degrees(turned_rad) < 1.0
-    # Without the texture the same grid keeps its best fit by overlap alone: another turn.
-    shape_only = pa.align_pass(1, moved, ref, SeenSpace((), ()), config)
-    assert math.degrees(alignment_error(shape_only.T, T_true, object_points)[1]) > 5.0
-
-
-def test_the_turns_no_hypothesis_reached_are_tried_and_the_texture_picks_the_true_one(
-    monkeypatch,
-):
-    """Here no fit of the rotation grid lands on the true turn (they land one to four flutes
-    away): the turns between the fits that fit the shape reveal its symmetry, and the others of
-    that symmetry are tried. With texture the true one is found; without, the shape is refused
-    as ambiguous rather than merged in a wrong turn."""
-    import reconstruction.hangings.alignment as pa
-
-    (moved, colors), (ref, ref_colors), T_true, object_points = _fluted_vase_passes(1)
-    monkeypatch.setattr(pa, "feature_hypotheses", lambda *a: [])
-    a = pa.align_pass(1, moved, ref, SeenSpace((), ()), AlignmentConfig(), colors, ref_colors)
-    assert a.verified, a.failures
-    moved_m, turned_rad = alignment_error(a.T, T_true, object_points)
-    assert moved_m < 0.002 and math.degrees(turned_rad) < 1.0
-    shape_only = pa.align_pass(1, moved, ref, SeenSpace((), ()), AlignmentConfig())
-    assert not shape_only.verified
-    assert any("ambiguous" in f for f in shape_only.failures)
-
-
-def test_sibling_starts_complete_the_turns_of_a_symmetry():
-    from reconstruction.hangings.symmetry import sibling_starts, turn_about_axis
-
-    axis, point = np.array([0.2, -0.3, 1.0]) / np.linalg.norm([0.2, -0.3, 1.0]), [0.4, 0.1, 1.0]
-
-    def turn(deg):
-        R = rotation_about(axis, math.radians(deg))
-        return make_pose(R, point - R @ point)
-
-    T_true = make_pose(rotation_about(np.array([1.0, 0, 0]), 2.0), [0.05, 0.0, 0.02])
-    # Two fits of an eight-fold shape, one and two flutes from the truth; a poor fit elsewhere.
-    fits = [(0.5, turn(45) @ T_true), (0.48, turn(90) @ T_true), (0.1, turn(10) @ T_true)]
-    starts = sibling_starts(fits, math.radians(10.0))
-    assert len(starts) == 7
-    errors = [alignment_error(S, T_true, [np.array(point)])[0] for S in starts]
-    angles = sorted(math.degrees(rotation_angle_rad(S[:3, :3] @ T_true[:3, :3].T)) for S in starts)
-    assert min(errors) < 1e-9 and angles[0] < 1e-6  # the truth is among them
-    np.testing.assert_allclose(angles, [0, 45, 90, 90, 135, 135, 180], atol=1e-6)
-    a, angle, p = turn_about_axis(turn(45))
-    np.testing.assert_allclose(a, axis, atol=1e-12)
-    assert math.degrees(angle) == pytest.approx(45.0)
-    assert np.linalg.norm(np.cross(np.asarray(p) - point, axis)) < 1e-9  # on the axis
-    # One good fit alone reveals no symmetry.
-    assert sibling_starts(fits[:1] + fits[2:], math.radians(10.0)) == []
-
-
 def test_a_symmetric_object_is_refused_as_ambiguous():
     import open3d as o3d
 
@@ -302,7 +198,7 @@ def test_a_symmetric_object_is_refused_as_ambiguous():
     v, t = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
     X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
     X1 = make_pose(rotation_about(np.array([1.0, 0, 0]), 2.0), [0.4, 0.0, 1.0])
-    a = align_pass(1, _partial_cloud(v, t, X1, 1), _partial_cloud(v, t, X0, 0), SeenSpace((), ()))
+    a = align_pass(1, partial_cloud(v, t, X1, 1), partial_cloud(v, t, X0, 0), SeenSpace((), ()))
     assert not a.verified and any("ambiguous" in f for f in a.failures)
 
 
@@ -311,8 +207,8 @@ def test_a_different_object_is_refused():
     X = make_pose(np.eye(3), [0.4, 0.0, 1.0])
     a = align_pass(
         1,
-        _partial_cloud(pebble.vertices, pebble.triangles, X, 1),
-        _partial_cloud(bracket.vertices, bracket.triangles, X, 0),
+        partial_cloud(pebble.vertices, pebble.triangles, X, 1),
+        partial_cloud(bracket.vertices, bracket.triangles, X, 0),
         SeenSpace((), ()),
         AlignmentConfig(),
     )
