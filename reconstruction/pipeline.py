@@ -39,7 +39,12 @@ from reconstruction.handeye.correction import (
     plausible_correction,
 )
 from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment
-from reconstruction.hangings.merge import align_hangings, group_positions, in_own_frames
+from reconstruction.hangings.merge import (
+    align_hangings,
+    group_positions,
+    in_own_frames,
+    to_first_frame,
+)
 from reconstruction.registration.all_views import EdgeReport, RegisteredViews, register_hangings
 from reconstruction.registration.filtering import (
     FilterConfig,
@@ -55,9 +60,7 @@ from reconstruction.registration.incremental import (
     outside_basin,
     share_holding,
 )
-from reconstruction.registration.pairwise import (
-    IcpConfig,
-)
+from reconstruction.registration.pairwise import IcpConfig
 from reconstruction.registration.posegraph import PoseGraphConfig, optimise_pose_graph
 from reconstruction.registration.views import ViewCloud
 from reconstruction.surfaces.build import surface_from
@@ -116,10 +119,8 @@ def variant_config(config: ReconstructionConfig, variant: str) -> Reconstruction
 
 @dataclass(frozen=True, eq=False)
 class ViewResult:
-    """One view's poses: kinematic (nominal X_FC, in its hanging's frame), after the last
-    registration round's pose graph (None without ICP; started from the mount of that round,
-    so it lies between the robot's poses and the registered ones), and the final one the
-    outputs use."""
+    """One view's poses: kinematic (nominal X_FC, its hanging's frame), after the last round's
+    pose graph (None without ICP; started at that round's mount), and the final one used."""
 
     index: int
     counts: FilterCounts
@@ -369,7 +370,7 @@ def reconstruct_views(
                 views, clouds, X_WC, groups, config.alignment, config.surfaces.fused_voxel_size_m
             )
     hanging_of = {k: h for h, group in enumerate(groups) for k in group}
-    T_of = [np.eye(4), *(a.T for a in alignments)]  # each hanging's frame -> the first's
+    T_of = to_first_frame(alignments)
     if fixtures:
         lines = list(fixtures) * (len(groups) if len(fixtures) == 1 else 1)
         fixtures = [line.moved(T) for line, T in zip(lines, T_of, strict=True)]

@@ -79,6 +79,11 @@ def align_hangings(
     return X_WC, tuple(alignments)
 
 
+def to_first_frame(alignments: Sequence[PassAlignment]) -> list[np.ndarray]:
+    """Per hanging (the first one included), the transform of its frame into the first's."""
+    return [np.eye(4), *(a.T for a in alignments)]
+
+
 def in_own_frames(
     remove_points: RemovePoints, T_of: Sequence[np.ndarray], hanging_of: Mapping[int, int]
 ) -> RemovePoints:

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from reconstruction.common.transforms import invert, make_pose, matrix_to_rotvec, rotvec_to_matrix
+from reconstruction.common.transforms import invert, make_pose, matrix_to_rotvec, rotation_about
 
 
 def turn_about_axis(S: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
@@ -65,6 +65,6 @@ def sibling_starts(
     n = min(max(round(2 * math.pi / angle), 2), max_turns)
     starts = []
     for k in range(1, n):
-        R = rotvec_to_matrix(axis * (2 * math.pi * k / n))
+        R = rotation_about(axis, 2 * math.pi * k / n)
         starts.append(make_pose(R, point - R @ point) @ T_best)
     return starts

@@ -15,6 +15,7 @@ import numpy as np  # noqa: E402
 from reconstruction.common.transforms import invert, pose_difference, transform_points  # noqa: E402
 from reconstruction.evaluation.deviation import deviation_stats, signed_distances  # noqa: E402
 from reconstruction.evaluation.metrics import TriangleSurface  # noqa: E402
+from reconstruction.hangings.merge import to_first_frame  # noqa: E402
 from reconstruction.pipeline import ReconstructionResult  # noqa: E402
 
 
@@ -25,8 +26,7 @@ def per_view_residuals(result: ReconstructionResult) -> list[dict]:
     errors and ICP noise). The placed pose is the final one, taken back into the view's own
     hanging's frame (where the robot's poses are). Empty without registration."""
     to_estimate = invert(result.X_FC_nominal) @ result.X_FC
-    # Each hanging's frame -> the first's; the final poses are in the first hanging's frame.
-    T_of = [np.eye(4), *(a.T for a in result.alignments)]
+    T_of = to_first_frame(result.alignments)  # the final poses are in the first's frame
     rows = []
     for v in result.views:
         if v.X_WC_registered is None:
