@@ -175,6 +175,6 @@ def test_an_existing_plan_is_replaced_only_with_force(tmp_path, capsys):
     other.mkdir()
     (other / "notes.txt").write_text("mine")
     assert main([*args, str(other), "--force"]) == 2
-    assert "not a plan folder" in capsys.readouterr().err
+    assert "is not a plan" in capsys.readouterr().err
     assert (other / "notes.txt").read_text() == "mine"
     assert main(["scan", "--plan-only", "--resume", str(out)]) == 2

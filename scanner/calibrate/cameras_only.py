@@ -28,9 +28,8 @@ from reconstruction.common.errors import ScannerError
 from robots.models.camera_tool import nominal_X_FC
 from scanner.calibrate.solve import no_board_anywhere
 from scanner.scan_dir.captures import atomic_write_text
+from scanner.scan_dir.outputs import CALIBRATION_FILE
 from scanner.scan_dir.results_folder import require_replaceable, staged_folder
-
-CALIBRATION_FILE = "calibration.yaml"
 
 
 @dataclass(frozen=True, eq=False)
@@ -195,7 +194,7 @@ def calibrate_cameras(
         report["source"],
         quality={"hand_eye": "not calibrated: the camera tool's nominal X_FC", **report},
     )
-    with staged_folder(results_dir) as staging:
+    with staged_folder(results_dir, CALIBRATION_FILE) as staging:
         atomic_write_text(staging / "report.json", json.dumps(report, indent=2) + "\n")
         atomic_write_text(staging / "report.txt", report_text(report))
         save_calibration(calibration, staging / CALIBRATION_FILE)

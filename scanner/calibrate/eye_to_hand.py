@@ -310,7 +310,7 @@ def _report(fit, grid_points_count, fit_skipped, test_skipped, errors, X_WS_true
 def _write_results(
     final: Path, report: dict, X_WS: np.ndarray, stereo: StereoCamera, p_FM: np.ndarray
 ) -> None:
-    with staged_folder(final) as results:
+    with staged_folder(final, "eye_to_hand.yaml") as results:
         _write_files(results, report, X_WS, stereo, p_FM)
 
 

@@ -21,9 +21,8 @@ from scanner.calibrate.sigma_check import error_in_sigmas
 from scanner.calibrate.solve import Solution, x_fc_sigma_record
 from scanner.reports.units import deg, mm
 from scanner.scan_dir.captures import atomic_write_text
+from scanner.scan_dir.outputs import CALIBRATION_FILE
 from scanner.scan_dir.results_folder import staged_folder
-
-CALIBRATION_FILE = "calibration.yaml"
 
 
 def truth_errors(
@@ -294,7 +293,7 @@ def write_results(
 ) -> Path:
     """calibration.yaml, report.json, report.txt and the corner pictures (corners/), all or
     nothing (a staged folder)."""
-    with staged_folder(results_dir) as staging:
+    with staged_folder(results_dir, CALIBRATION_FILE) as staging:
         if pictures and load_image is not None:
             write_pictures(staging / "corners", pictures, load_image)
         atomic_write_text(staging / "report.json", json.dumps(report, indent=2) + "\n")

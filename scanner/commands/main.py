@@ -18,6 +18,8 @@ from scanner.commands.monitor import add_monitor_parser
 from scanner.commands.reconstruct import add_merge_parser, add_reconstruct_parser
 from scanner.commands.scan import add_preview_parser, add_scan_parser
 from scanner.commands.view import add_view_parser
+from scanner.scan_dir.outputs import claim_output, command_output, input_paths
+from scanner.scan_dir.results_folder import require_creatable
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,15 +56,30 @@ def _version() -> str:
         return "(not installed)"
 
 
-def _run(args: argparse.Namespace) -> int:
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     """Each command's parser names its runner (`add_command(..., run="module:function")`),
-    imported only now, so that building the parser stays light."""
-    if getattr(args, "out", None) is not None:
-        from scanner.scan_dir.results_folder import require_creatable
-
-        require_creatable(args.out, "--out")
+    imported only now, so that building the parser stays light. What it writes to is checked
+    first, the same way for every command (scanner.scan_dir.outputs)."""
+    output = command_output(args)
+    if output is not None:
+        flag, out, kind = output
+        claim_output(flag, out, kind, args.force, input_paths(args, _flags(parser, args)))
+        require_creatable(out.parent if kind.is_file else out, flag)
     module, function = args.run.split(":")
     return getattr(importlib.import_module(module), function)(args)
+
+
+def _flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, str]:
+    """argparse dest -> the words a user typed for it (the long option, or the metavar of a
+    positional argument), in the chosen subcommand's parser."""
+    chosen = parser._parser_of(args)
+    flags = {}
+    for action in chosen._actions:
+        if action.option_strings:
+            flags[action.dest] = max(action.option_strings, key=len)
+        else:
+            flags[action.dest] = action.metavar or action.dest.upper()
+    return flags
 
 
 def _quiet_libraries() -> None:
@@ -80,10 +97,11 @@ def _quiet_libraries() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     _quiet_libraries()
     try:
-        return _run(args)
+        return _run(args, parser)
     except ScannerError as e:
         message = " ".join(str(e).split())  # one line, whatever a library put into it
         print(f"scanner: error: {message}", file=sys.stderr)

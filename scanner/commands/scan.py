@@ -176,11 +176,10 @@ def add_preview_parser(sub) -> None:
         default="vase",
         help=f"built-in object ({BUILTIN_HELP}) or a mesh file (default %(default)s)",
     )
-    preview.add_argument(
-        "--out",
-        type=path_arg,
-        default=Path("out/preview"),
-        help="output folder (default %(default)s)",
+    add_output_arguments(
+        preview,
+        "output folder (default out/preview, or out/preview-N when that holds one already)",
+        "replace the preview already in --out",
     )
     add_seed_argument(preview, default=0)
 
@@ -289,7 +288,12 @@ def run_preview_command(args: argparse.Namespace) -> int:
     from scanner.scan.preview import run_preview
 
     for_flag("--seed", lambda: ErrorModel(seed=args.seed))
-    result = run_preview(args.object, args.out, args.seed)
+    out = args.out
+    if out is None:
+        from scanner.scan_dir.results_folder import free_results_dir
+
+        out = free_results_dir(Path("out"), "overview.png", "preview")
+    result = run_preview(args.object, out, args.seed)
     print(f"overview: {result.overview_png}")
     print(f"stereo pair: {result.left_png} {result.right_png}")
     return 0

@@ -16,11 +16,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from reconstruction.common.errors import RefusedResultError, ScannerError
+from scanner.scan_dir.outputs import INSPECTION_MARKER
 
 if TYPE_CHECKING:  # the parser reads InspectOptions' defaults without loading Open3D
     from reconstruction.evaluation.metrics import TriangleSurface
 
-INSPECTION_MARKER = "inspection.json"
 # The least share of the model that must lie on the aligned reference for the comparison to
 # mean anything (below it the parts differ, or the unit or the alignment is wrong).
 MIN_OVERLAP = 0.5
@@ -181,7 +181,7 @@ def run_inspect(target: Path, options: InspectOptions) -> InspectRun:
     out = options.out or free_results_dir(source.default_root, INSPECTION_MARKER, "inspection")
     placed, signed, stats, report = inspect_model(model, reference, options, source.camera_centres)
     report = {"model": str(source.mesh_path), "reference": str(options.reference), **report}
-    with staged_folder(out) as staging:
+    with staged_folder(out, INSPECTION_MARKER) as staging:
         _write_files(staging, model, placed, signed, stats, report, options)
     return InspectRun(report, out)
 

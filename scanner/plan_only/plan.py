@@ -24,10 +24,10 @@ from scanner.plan_only.records import PlannedViewpoint, ScanPlan
 from scanner.scan.decision import FixedViewList
 from scanner.scan.sampling import fibonacci_directions
 from scanner.scan.world import ScanWorld, setup_world
+from scanner.scan_dir.outputs import PLAN_FILE  # written last: it marks a finished plan
 from scanner.scan_dir.results_folder import holds_result, staged_folder
 from scanner.scan_dir.views import PlannedView
 
-PLAN_FILE = "plan.json"  # written last: its presence marks a finished plan folder
 PICTURE_FILE = "plan.png"
 
 
@@ -260,7 +260,7 @@ def run_plan_only(config: ScanConfig, out: Path, force: bool = False) -> PlanRun
     require_plan_folder(out, force)
     world = setup_world(config)
     plan = plan_scan(config, world)
-    with staged_folder(Path(out)) as staging:
+    with staged_folder(Path(out), PLAN_FILE) as staging:
         draw_plan(plan, config.cell, staging / PICTURE_FILE)
         text = json.dumps(plan_to_dict(plan, config), indent=2) + "\n"
         (staging / PLAN_FILE).write_text(text)

@@ -49,6 +49,7 @@ from scanner.reports.model_page import PAGE_NAME
 from scanner.reports.self_checks import self_check_record
 from scanner.scan_dir.captures import atomic_write_text
 from scanner.scan_dir.manifest import SavedScan, open_scan
+from scanner.scan_dir.outputs import RECONSTRUCTION_MARKER
 from scanner.scan_dir.results_folder import free_results_dir, holds_result, staged_folder
 
 log = logging.getLogger("scanner.reconstruct.stages")
@@ -73,9 +74,6 @@ class ReconstructRun:
     # Builds the scene of the results' 3D page (`add_model_page`); None once it is written.
     page_scene: Callable[[], object] | None = None
     model_written: ModelWritten | None = None
-
-
-RECONSTRUCTION_MARKER = "reconstruction.yaml"
 
 
 def holds_reconstruction(results_dir: Path) -> bool:
@@ -289,7 +287,7 @@ def _reconstruct(
     }
     truth = views.truths[0]
     earlier = _earlier_report(out)
-    with staged_folder(out) as staging:
+    with staged_folder(out, RECONSTRUCTION_MARKER) as staging:
         # The model first, as a whole: what the user waits for.
         eyes = {v.index: eyes_of(v.index, v.X_WC) for v in result.views}
         report["coverage_estimate"] = result.coverage.fraction
