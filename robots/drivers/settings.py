@@ -17,6 +17,15 @@ from reconstruction.common.checks import (
 from reconstruction.common.errors import ScannerError
 
 ROBOT_KINDS = ("staubli_val3",)
+# The slowest movej the driver commands, as a fraction of each joint's nominal speed. The VAL 3
+# server turns the fraction into a percentage and rounds it to 1e-4 % before movej
+# (interpolateVel.pgx), and it rewrites exactly 0.1 % into another speed; a fraction of 1e-38
+# is accepted and holds the queue for ever. At 1 % a radian already takes 20 s on the RX60's
+# slowest joints (287 deg/s nominal, robots/models/rx60.py): nothing slower is ever needed.
+MIN_SPEED_FRACTION = 0.01
+# The VAL 3 server streams STATUS every 5th 20 ms cycle (dataStreamer.pgx, start.pgx): a state
+# timeout shorter than two such periods would stop the arm on one late STATUS.
+MIN_STATE_TIMEOUT_S = 0.2
 # "simulated": the scan's own simulated cell rendered at the joints the robot link reports
 # (with the controller emulator: a whole scan over the wire without a camera).
 CAMERA_KINDS = ("opencv", "realsense", "simulated")
@@ -26,9 +35,11 @@ CAMERA_KINDS = ("opencv", "realsense", "simulated")
 class RobotLinkConfig:
     """The arm's controller. staubli_val3: the ROS-Industrial VAL 3 server on a CS8/CS9
     controller (its default ports); speed_fraction: movej speed as a fraction of each joint's
-    nominal speed; path_tolerance_rad: how far a measured joint may leave the commanded
-    joint-linear path before the arm is stopped; state_timeout_s: a state stream silent this
-    long stops the arm; connect_timeout_s: for each TCP connection and the first state."""
+    nominal speed, at least MIN_SPEED_FRACTION; path_tolerance_rad: how far a measured joint may
+    leave the commanded joint-linear path before the arm is stopped; state_timeout_s: the age
+    limit of the joints and of STATUS (either older stops the arm; at least
+    MIN_STATE_TIMEOUT_S), and of the wait for each point's reply; connect_timeout_s: for each
+    TCP connection and the first state."""
 
     kind: str = "staubli_val3"
     host: str = "127.0.0.1"
@@ -44,6 +55,21 @@ class RobotLinkConfig:
         if not self.host:
             raise ScannerError("hardware.robot.host: expected a host name or address, got ''")
         check_fields("hardware.robot", self)
+        require_speed_fraction(self.speed_fraction)
+        if not self.state_timeout_s >= MIN_STATE_TIMEOUT_S:
+            raise ScannerError(
+                f"hardware.robot.state_timeout_s: expected at least {MIN_STATE_TIMEOUT_S} s "
+                f"(two periods of the controller's STATUS), got {self.state_timeout_s!r}"
+            )
+
+
+def require_speed_fraction(speed_fraction: float) -> None:
+    """The driver commands no movej slower than MIN_SPEED_FRACTION (written so NaN fails)."""
+    if not MIN_SPEED_FRACTION <= speed_fraction <= 1.0:
+        raise ScannerError(
+            f"hardware.robot.speed_fraction: expected a fraction of nominal speed in "
+            f"[{MIN_SPEED_FRACTION}, 1], got {speed_fraction!r}"
+        )
 
 
 @dataclass(frozen=True)

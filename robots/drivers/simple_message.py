@@ -12,12 +12,20 @@ little-endian, `length` counting the bytes after itself; reals are float32. The 
 reads a 4-byte prefix and a 12-byte header, then a body of the size its message type has; it
 has no body size for any other type, so an unknown message (even a PING) leaves its body in the
 stream to be read as the next header: never send anything but JOINT_TRAJ_PT to it.
+
+Every real in either direction must be a finite float32: a NaN or an infinity is refused with a
+ProtocolError naming the field, when encoding and when decoding (a NaN joint reading compares
+false with every tolerance, so a check written `deviation > tolerance` would let it pass), and so
+is a value beyond float32's range, which the wire would turn into an infinity.
 """
 
 from __future__ import annotations
 
+import math
 import socket
 import struct
+import time
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,8 +59,13 @@ BODY_SIZES = {
 }
 
 
+# The largest finite float32 (IEEE 754 binary32), the reals' type on the wire.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+
+
 class ProtocolError(Exception):
-    """The peer sent bytes that are not the message the protocol has there."""
+    """Bytes that are not the message the protocol has there, or values no message can carry."""
 
 
 @dataclass(frozen=True)
@@ -100,11 +113,34 @@ class RobotStatus:
         return None
 
 
+def _wire_real(field: str, value: float) -> float:
+    """`value` as the wire can carry it; ProtocolError naming `field` otherwise."""
+    value = float(value)
+    if not abs(value) <= FLOAT32_MAX:  # false for NaN too
+        raise ProtocolError(f"{field}: {value!r} is not a finite float32")
+    return value
+
+
+def _wire_int(field: str, value: int) -> int:
+    if not INT32_MIN <= value <= INT32_MAX:
+        raise ProtocolError(f"{field}: {value!r} is not an int32")
+    return value
+
+
 def _wire_joints(joints_rad: np.ndarray) -> list[float]:
     q = np.asarray(joints_rad, float).ravel()
     if len(q) > WIRE_JOINTS:
-        raise ValueError(f"at most {WIRE_JOINTS} joints fit a message, got {len(q)}")
-    return list(q) + [0.0] * (WIRE_JOINTS - len(q))
+        raise ProtocolError(f"joints: at most {WIRE_JOINTS} fit a message, got {len(q)}")
+    values = [_wire_real(f"joints[{i}]", x) for i, x in enumerate(q)]
+    return values + [0.0] * (WIRE_JOINTS - len(q))
+
+
+def _finite(field: str, values: tuple[float, ...]) -> None:
+    """Decoded float32 reals: ProtocolError naming the first that is NaN or infinite."""
+    for i, value in enumerate(values):
+        if not math.isfinite(value):
+            name = field if len(values) == 1 else f"{field}[{i}]"
+            raise ProtocolError(f"{name}: {value!r} is not a finite number")
 
 
 def packet(header: Header, body: bytes) -> bytes:
@@ -118,7 +154,10 @@ def packet(header: Header, body: bytes) -> bytes:
 def encode_traj_pt(point: JointTrajPt) -> bytes:
     """A JOINT_TRAJ_PT service request, as the motion port reads it."""
     body = JOINT_TRAJ_PT_BODY.pack(
-        point.sequence, *_wire_joints(point.joints_rad), point.velocity, point.duration_s
+        _wire_int("sequence", point.sequence),
+        *_wire_joints(point.joints_rad),
+        _wire_real("velocity", point.velocity),
+        _wire_real("duration", point.duration_s),
     )
     return packet(Header(JOINT_TRAJ_PT, SERVICE_REQUEST, INVALID), body)
 
@@ -148,23 +187,77 @@ def encode_status(status: RobotStatus) -> bytes:
     return packet(Header(STATUS, TOPIC, INVALID), body)
 
 
+def _unpack(layout: struct.Struct, body: bytes, what: str) -> tuple:
+    if len(body) != layout.size:
+        raise ProtocolError(f"{what}: a body of {layout.size} bytes, got {len(body)}")
+    return layout.unpack(body)
+
+
 def decode_traj_pt(body: bytes, joints: int = 6) -> JointTrajPt:
-    values = JOINT_TRAJ_PT_BODY.unpack(body)
+    """A JOINT_TRAJ_PT body; every slot of the ten joints, velocity and duration finite."""
+    values = _unpack(JOINT_TRAJ_PT_BODY, body, "JOINT_TRAJ_PT")
+    _finite("joints", values[1:11])
+    _finite("velocity", values[11:12])
+    _finite("duration", values[12:13])
     return JointTrajPt(values[0], np.array(values[1 : 1 + joints], float), values[11], values[12])
 
 
 def decode_joint_position(body: bytes, joints: int = 6) -> np.ndarray:
-    return np.array(JOINT_POSITION_BODY.unpack(body)[1 : 1 + joints], float)
+    """A JOINT_POSITION body's joints (rad); every slot of the ten finite."""
+    values = _unpack(JOINT_POSITION_BODY, body, "JOINT_POSITION")
+    _finite("joints", values[1:])
+    return np.array(values[1 : 1 + joints], float)
 
 
 def decode_status(body: bytes) -> RobotStatus:
-    return RobotStatus(*STATUS_BODY.unpack(body))
+    return RobotStatus(*_unpack(STATUS_BODY, body, "STATUS"))
 
 
-def recv_exact(sock: socket.socket, count: int) -> bytes:
-    """Exactly `count` bytes however TCP split them; ConnectionError when the peer closed."""
+DECODERS = {
+    JOINT_TRAJ_PT: decode_traj_pt,
+    JOINT_POSITION: decode_joint_position,
+    STATUS: decode_status,
+}
+
+
+def _check_frame(length: int, header: Header, expected: Collection[int]) -> int:
+    """The body size of a packet announced by `length` and `header`, if it is one of `expected`
+    with the length its type has (a peer speaking another protocol fails here, not later with
+    garbage joint values)."""
+    size = BODY_SIZES.get(header.msg_type)
+    if header.msg_type not in expected or size is None or length != HEADER.size + size:
+        raise ProtocolError(
+            f"expected a simple_message of type {sorted(expected)}, got type "
+            f"{header.msg_type} with length {length}"
+        )
+    return size
+
+
+def decode(data: bytes, expected: Collection[int] = tuple(DECODERS)) -> tuple[Header, object]:
+    """One whole packet held in `data`: its header and its decoded body (a JointTrajPt, the
+    joints of a JOINT_POSITION, a RobotStatus); ProtocolError for any other bytes."""
+    start = PREFIX.size + HEADER.size
+    if len(data) < start:
+        raise ProtocolError(f"a packet has at least {start} bytes, got {len(data)}")
+    (length,) = PREFIX.unpack_from(data)
+    header = Header(*HEADER.unpack_from(data, PREFIX.size))
+    size = _check_frame(length, header, expected)
+    if len(data) != start + size:
+        raise ProtocolError(f"a packet of {start + size} bytes, got {len(data)}")
+    return header, DECODERS[header.msg_type](data[start:])
+
+
+def recv_exact(sock: socket.socket, count: int, deadline_s: float | None = None) -> bytes:
+    """Exactly `count` bytes however TCP split them; ConnectionError when the peer closed,
+    TimeoutError when they have not all come by `deadline_s` (monotonic; None: the socket's own
+    timeout for each read), so a peer sending a byte at a time cannot stretch the wait."""
     chunks, got = [], 0
     while got < count:
+        if deadline_s is not None:
+            left_s = deadline_s - time.monotonic()
+            if left_s <= 0:
+                raise TimeoutError(f"{got} of {count} bytes by the deadline")
+            sock.settimeout(left_s)
         chunk = sock.recv(count - got)
         if not chunk:
             raise ConnectionError("the connection was closed by the other end")
@@ -173,15 +266,12 @@ def recv_exact(sock: socket.socket, count: int) -> bytes:
     return b"".join(chunks)
 
 
-def read_packet(sock: socket.socket, expected: set[int]) -> tuple[Header, bytes]:
-    """One whole packet of a type in `expected`, checking its length against the type's size
-    (a peer speaking another protocol fails here, not later with garbage joint values)."""
-    (length,) = PREFIX.unpack(recv_exact(sock, PREFIX.size))
-    header = Header(*HEADER.unpack(recv_exact(sock, HEADER.size)))
-    size = BODY_SIZES.get(header.msg_type)
-    if header.msg_type not in expected or size is None or length != HEADER.size + size:
-        raise ProtocolError(
-            f"expected a simple_message of type {sorted(expected)}, got type "
-            f"{header.msg_type} with length {length}"
-        )
-    return header, recv_exact(sock, size)
+def read_packet(
+    sock: socket.socket, expected: set[int], deadline_s: float | None = None
+) -> tuple[Header, bytes]:
+    """One whole packet of a type in `expected`, its length checked against the type's size;
+    the body is left to the type's decoder."""
+    (length,) = PREFIX.unpack(recv_exact(sock, PREFIX.size, deadline_s))
+    header = Header(*HEADER.unpack(recv_exact(sock, HEADER.size, deadline_s)))
+    size = _check_frame(length, header, expected)
+    return header, recv_exact(sock, size, deadline_s)
