@@ -242,12 +242,16 @@ class Val3Robot(RobotDriver):
             raise
 
     def _stream(self, points: np.ndarray) -> None:
-        """Send points 1.. in order (each resent while the queue is full), watching the arm."""
+        """Send points 1.. in order (each resent while the queue is full), watching the arm
+        before every send, so no point goes out on state older than state_timeout_s."""
         last = len(points) - 1
         for k in range(1, len(points)):
             refused_at = time.monotonic()
             deadline = refused_at + self._drain_time_s(points)
-            while not self._send_point(points[k]):
+            while True:
+                self._watch(points, k - 1)
+                if self._send_point(points[k]):
+                    break
                 state = self._watch(points, k - 1)
                 # FAILURE means a full queue or a point the controller will never take (its
                 # joint limits): once the arm rests on the last accepted point, with a STATUS
@@ -268,7 +272,6 @@ class Val3Robot(RobotDriver):
                         "drain; the arm was stopped"
                     )
                 time.sleep(RESEND_PERIOD_S)
-            self._watch(points, k)
 
     def _drain_time_s(self, points: np.ndarray) -> float:
         """Time for a full queue of the longest chords to run, plus a margin."""
