@@ -45,6 +45,10 @@ def reply(sequence: int, code: int = sm.SUCCESS) -> bytes:
     return sm.encode_traj_pt_reply(sequence, code)
 
 
+def reply_code(packet: bytes) -> int:
+    return sm.HEADER.unpack_from(packet, sm.PREFIX.size)[2]
+
+
 def raw_joint_position(joints: list[float]) -> bytes:
     """A JOINT_POSITION packed without the codec's checks (it may carry NaN)."""
     body = sm.JOINT_POSITION_BODY.pack(0, *(list(joints) + [0.0] * (10 - len(joints))))
@@ -156,7 +160,8 @@ class FakeController:
     def _serve_client(self, conn: socket.socket, connection: int) -> None:
         try:
             while True:
-                _, point = sm.decode(sm.recv_exact(conn, 68), {sm.JOINT_TRAJ_PT})
+                _, body = sm.read_packet(conn, {sm.JOINT_TRAJ_PT})
+                point = sm.decode_traj_pt(body)
                 request = Request(time.monotonic(), connection, point)
                 with self._lock:
                     self.requests.append(request)

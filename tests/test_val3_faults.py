@@ -18,7 +18,7 @@ from robots.drivers import staubli_val3
 from robots.drivers.interfaces import JointTrajectory
 from robots.drivers.settings import RobotLinkConfig
 from robots.drivers.staubli_val3 import RobotStoppedError, Val3Robot
-from tests.fake_val3 import FakeController, Request, reply
+from tests.fake_val3 import FakeController, Request, reply, reply_code
 
 Q0 = np.array([0.0, -0.4, 2.3, 0.0, 0.8, 0.0])
 STATE_TIMEOUT_S = 0.3
@@ -226,7 +226,7 @@ def test_a_reply_to_nothing_while_the_arm_runs_on_stops_it(fake):
     goal = trajectory().positions_rad[-1]
 
     def then_a_stray(request, normal):
-        if sm.decode(normal)[0].reply_code != sm.SUCCESS:
+        if reply_code(normal) != sm.SUCCESS:
             return [(0.0, normal)]  # the queue was full: it comes again
         fake.fault()
         # The arm, 20 ms a point with up to 10 queued, is still on its way 50 ms later.

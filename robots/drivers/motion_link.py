@@ -23,6 +23,7 @@ import numpy as np
 
 from reconstruction.common.errors import ScannerError
 from robots.drivers import simple_message as sm
+from robots.drivers.simple_message import close_socket
 
 STOP = sm.JointTrajPt(sm.STOP_TRAJECTORY, np.zeros(6), 0.0, 0.0)
 
@@ -136,9 +137,3 @@ def _mismatch(point: sm.JointTrajPt, header: sm.Header, reply: sm.JointTrajPt) -
     if header.reply_code not in (sm.SUCCESS, sm.FAILURE):
         return f"answered point {point.sequence} with reply code {header.reply_code}"
     return None
-
-
-def close_socket(sock: socket.socket) -> None:
-    with contextlib.suppress(OSError):
-        sock.shutdown(socket.SHUT_RDWR)
-    sock.close()

@@ -21,6 +21,7 @@ is a value beyond float32's range, which the wire would turn into an infinity.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import socket
 import struct
@@ -275,3 +276,11 @@ def read_packet(
     header = Header(*HEADER.unpack(recv_exact(sock, HEADER.size, deadline_s)))
     size = _check_frame(length, header, expected)
     return header, recv_exact(sock, size, deadline_s)
+
+
+def close_socket(sock: socket.socket) -> None:
+    """Shut down (which wakes a thread blocked on it) and close; errors of a socket already gone
+    are ignored."""
+    with contextlib.suppress(OSError):
+        sock.shutdown(socket.SHUT_RDWR)
+    sock.close()

@@ -33,7 +33,7 @@ import numpy as np
 from reconstruction.common.errors import ScannerError
 from robots.drivers import simple_message as sm
 from robots.drivers.interfaces import JointTrajectory, RobotDriver
-from robots.drivers.motion_link import MotionLink, MotionLinkError, close_socket
+from robots.drivers.motion_link import MotionLink, MotionLinkError
 from robots.drivers.settings import RobotLinkConfig, require_speed_fraction
 
 # industrial_robot_client's streamer: a point is reached when every joint is within this of it.
@@ -169,7 +169,7 @@ class Val3Robot(RobotDriver):
         self._motion.close()
         state_socket = getattr(self, "_state_socket", None)
         if state_socket is not None:
-            close_socket(state_socket)
+            sm.close_socket(state_socket)
 
     # -- state ------------------------------------------------------------------------------
 

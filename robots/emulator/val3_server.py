@@ -8,18 +8,24 @@ state port counts as connected a delay after a client connects). The receiver pa
 the VAL 3 code does, quirks included: it reads a body only for JOINT_TRAJ_PT, so any other
 message leaves its body in the stream to be read as the next header (the stream desynchronises),
 and it resets its state machine when the next field of a message has not arrived yet (VAL 3
-sioGet() does not wait for data), so a client must send each packet in one write.
+sioGet() does not wait for data), so a client must send each packet in one write. It accepts any
+velocity above 0, as pushMotion.pgx does (`vel > 0` is its only check): a point at a velocity of
+1e-38 is queued and holds the queue for ever, behind a move that never ends.
+
+One client per port, and none can freeze a port or the emulator (clients.py: how the VAL 3
+server's one-client sockets are followed, and where the emulator sets limits the VAL 3 code does
+not have). The points received are kept for inspection, the newest `received_kept` of them.
 
 Not emulated: JOINT_TRAJ_PT_FULL (14, read as an unknown type), interpolateVel.pgx's rewrite of a
-0.1 % speed (a point with velocity exactly 0.001), task errors (error_code, in_error stay 0).
+0.1 % speed (a point with velocity exactly 0.001) and its rounding of the percentage to four
+decimals (under 0.00005 % the speed becomes 0, which movej refuses with a task error; the emulated
+arm moves at the tiny speed instead: the queue never drains either way), task errors
+(error_code, in_error stay 0).
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
-import select
-import socket
 import threading
 import time
 from collections import deque
@@ -31,11 +37,10 @@ import numpy as np
 from robots.drivers import simple_message as sm
 from robots.drivers.simple_message import JointTrajPt, RobotStatus
 from robots.emulator.arm import Arm, MoveJ
+from robots.emulator.clients import ClientStalledError, Port
 from robots.models.rx60 import ACCELERATION_TIME_S, RX60
 
 _RX60 = RX60()
-# Fault injection: split writes go out in pieces of 1, 2, 3, 1, ... bytes, this far apart.
-_SPLIT_PAUSE_S = 0.001
 
 
 @dataclass(frozen=True)
@@ -57,53 +62,12 @@ class EmulatorSettings:
     upper_limits_rad: tuple[float, ...] = _RX60.upper_limits_rad
     nominal_speed_rad_s: tuple[float, ...] = _RX60.velocity_limits_rad_s
     acceleration_time_s: float = ACCELERATION_TIME_S
-
-
-class _Port:
-    """A listening TCP port with at most one client: a new connection replaces the current
-    one, as the controller's sio socket does."""
-
-    def __init__(self, host: str, port: int) -> None:
-        self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self.listener.bind((host, port))
-        self.listener.listen(1)
-        self.client: socket.socket | None = None
-        self._lock = threading.Lock()
-
-    def accept(self) -> socket.socket:
-        sock, _ = self.listener.accept()
-        # The controller's sockets are configured with Nagle off (staubli_val3_driver README).
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        with self._lock:
-            old, self.client = self.client, sock
-        _close(old)
-        return sock
-
-    def drop(self, sock: socket.socket | None = None) -> None:
-        """Close the client (only if it is still `sock`, when given)."""
-        with self._lock:
-            if sock is not None and sock is not self.client:
-                return
-            old, self.client = self.client, None
-        _close(old)
-
-    def poll(self, sock: socket.socket | None, timeout_s: float) -> list[socket.socket]:
-        """Wait for a connection on the listener or data (or the end) from `sock`."""
-        watched = [self.listener] if sock is None else [self.listener, sock]
-        return select.select(watched, [], [], timeout_s)[0]
-
-    def close(self) -> None:
-        self.drop()
-        _close(self.listener)
-
-
-def _close(sock: socket.socket | None) -> None:
-    if sock is None:
-        return
-    with contextlib.suppress(OSError):
-        sock.shutdown(socket.SHUT_RDWR)  # wakes a thread blocked on it
-    sock.close()
+    # A client that leaves a field part-sent or takes nothing sent to it this long is dropped.
+    client_timeout_s: float = 2.0
+    # SO_SNDBUF of each client connection; 0: the system's (fault injection, see clients.py).
+    send_buffer_bytes: int = 0
+    # Received points kept for inspection (about 400 bytes each), the newest first to stay.
+    received_kept: int = 10_000
 
 
 class Val3Emulator:
@@ -116,7 +80,8 @@ class Val3Emulator:
         on_joints: Callable[[np.ndarray], None] | None = None,
     ) -> None:
         self.settings = settings
-        self.received: list[JointTrajPt] = []
+        self._received: deque[JointTrajPt] = deque(maxlen=settings.received_kept)
+        self.received_count = 0
         self._on_joints = on_joints
         speed_rad_s = np.array(settings.nominal_speed_rad_s)
         self._arm = Arm(q0, speed_rad_s, settings.acceleration_time_s, settings.queue_depth)
@@ -124,8 +89,8 @@ class Val3Emulator:
         self._lock = threading.Lock()
         self._stopping = threading.Event()
         self._threads: list[threading.Thread] = []
-        self._motion: _Port | None = None
-        self._state: _Port | None = None
+        self._motion: Port | None = None
+        self._state: Port | None = None
         self._state_up = False  # nOutConnFlag == 1
         self._stop_now = False  # bStopNow
         self._e_stopped = False
@@ -136,8 +101,9 @@ class Val3Emulator:
 
     def start(self) -> Val3Emulator:
         s = self.settings
-        self._motion = _Port(s.host, s.motion_port)
-        self._state = _Port(s.host, s.state_port)
+        limits = (s.client_timeout_s, s.send_buffer_bytes)
+        self._motion = Port("motion", s.host, s.motion_port, *limits)
+        self._state = Port("state", s.host, s.state_port, *limits)
         for task in (self._receiver, self._motion_control, self._state_port):
             thread = threading.Thread(target=task, name=f"val3-{task.__name__}", daemon=True)
             thread.start()
@@ -158,6 +124,12 @@ class Val3Emulator:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    @property
+    def received(self) -> list[JointTrajPt]:
+        """The points received, oldest first: the newest `received_kept` of them."""
+        with self._lock:
+            return list(self._received)
 
     @property
     def motion_address(self) -> tuple[str, int]:
@@ -218,8 +190,11 @@ class Val3Emulator:
 
     def set_reported_offset(self, offset_rad: np.ndarray) -> None:
         """Report joints = true joints + offset (measured joints leave the commanded path)."""
+        offset_rad = np.array(offset_rad, dtype=float)
+        if not np.isfinite(offset_rad).all():
+            raise ValueError("the reported offset must be finite (the wire carries no NaN)")
         with self._lock:
-            self._offset_rad = np.array(offset_rad, dtype=float)
+            self._offset_rad = offset_rad
 
     def hold_queue(self, on: bool) -> None:
         """The motion task stops taking points from the queue (a blocked motion task)."""
@@ -227,36 +202,6 @@ class Val3Emulator:
             self._hold = on
 
     # --- the VAL 3 tasks -------------------------------------------------------------------
-    def _send(self, sock: socket.socket, packet: bytes) -> None:
-        """sendRosMsg.pgx: prefix, header and body as three writes (OSError when it fails)."""
-        for part in (packet[:4], packet[4:16], packet[16:]):
-            if not self._split:
-                sock.sendall(part)
-                continue
-            i, size = 0, 1
-            while i < len(part):
-                sock.sendall(part[i : i + size])
-                i, size = i + size, size % 3 + 1
-                time.sleep(_SPLIT_PAUSE_S)
-
-    def _read(self, sock: socket.socket, count: int) -> bytes | None:
-        """recvData.pgx: None when not one byte is there yet (sioGet() returns 0 and the state
-        machine resets); once a byte came, wait for all `count`."""
-        data = b""
-        while len(data) < count:
-            ready, _, _ = select.select([sock], [], [], 0.05 if data else 0.0)
-            if self._stopping.is_set():
-                raise ConnectionError("the emulator is stopping")
-            if not ready:
-                if not data:
-                    return None
-                continue
-            chunk = sock.recv(count - len(data))
-            if not chunk:
-                raise ConnectionError("the client closed the motion connection")
-            data += chunk
-        return data
-
     def _receiver(self) -> None:
         """dataReceiver.pgx with recvMsgHeader / recvMsgBody / pushMotion / sendAck."""
         assert self._motion is not None
@@ -270,30 +215,44 @@ class Val3Emulator:
                     continue
                 if sock is None or sock not in ready:
                     continue
-                prefix = self._read(sock, sm.PREFIX.size)
+                prefix = port.read(sock, sm.PREFIX.size, self._stopping)
                 # The prefix's length is never used: the message type alone sets the body size.
-                header = None if prefix is None else self._read(sock, sm.HEADER.size)
+                header = None if prefix is None else port.read(sock, sm.HEADER.size, self._stopping)
                 if header is None:
                     continue
                 msg_type, comm_type, _ = sm.HEADER.unpack(header)
                 if msg_type != sm.JOINT_TRAJ_PT:
                     continue  # recvMsgBody.pgx: no body size, reset (the body stays unread)
-                body = self._read(sock, sm.JOINT_TRAJ_PT_BODY.size)
+                body = port.read(sock, sm.JOINT_TRAJ_PT_BODY.size, self._stopping)
                 if body is None:
                     continue
-                point = sm.decode_traj_pt(body)
-                reply_code = self._push_motion(point)
+                sequence, reply_code = self._receive_point(body)
                 if comm_type == sm.SERVICE_REQUEST:
-                    self._send(sock, sm.encode_traj_pt_reply(point.sequence, reply_code))
+                    reply = sm.encode_traj_pt_reply(sequence, reply_code)
+                    port.send(sock, reply, self._split)
+            except ClientStalledError as e:
+                port.drop(sock, str(e))
             except (OSError, ValueError):
                 # Lost, replaced or closed under us (ValueError: select on a closed socket).
                 port.drop(sock)
+
+    def _receive_point(self, body: bytes) -> tuple[int, int]:
+        """The sequence to echo and the reply code for a JOINT_TRAJ_PT body."""
+        try:
+            point = sm.decode_traj_pt(body)
+        except sm.ProtocolError:
+            # A NaN or infinite real, which the codec refuses. pushMotion.pgx would refuse it
+            # too (isInRange() and `vel > 0` are false for NaN), or decTrajPt.pgx would fail
+            # to decode it: FAILURE either way.
+            return sm.JOINT_TRAJ_PT_BODY.unpack(body)[0], sm.FAILURE
+        return point.sequence, self._push_motion(point)
 
     def _push_motion(self, point: JointTrajPt) -> int:
         """pushMotion.pgx: the reply code for a received point."""
         s = self.settings
         with self._lock:
-            self.received.append(point)
+            self._received.append(point)
+            self.received_count += 1
             if point.sequence == sm.STOP_TRAJECTORY:
                 self._stop_now = True
                 return sm.SUCCESS
@@ -366,8 +325,8 @@ class Val3Emulator:
                     throttle = 0
                 throttle += 1
                 for packet in packets:
-                    self._send(sock, packet)
-            except (OSError, ValueError):
+                    port.send(sock, packet, self._split)
+            except (OSError, ValueError) as e:
                 with self._lock:
                     self._state_up = False
-                port.drop(sock)
+                port.drop(sock, str(e) if isinstance(e, ClientStalledError) else None)
