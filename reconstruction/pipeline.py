@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -39,12 +40,7 @@ from reconstruction.handeye.correction import (
     plausible_correction,
 )
 from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment
-from reconstruction.hangings.merge import (
-    align_hangings,
-    group_positions,
-    in_own_frames,
-    to_first_frame,
-)
+from reconstruction.hangings.merge import group_positions, place_hangings
 from reconstruction.registration.all_views import EdgeReport, RegisteredViews, register_hangings
 from reconstruction.registration.filtering import (
     FilterConfig,
@@ -153,6 +149,11 @@ class ReconstructionResult:
     # Pairs registered before the reconstruction began (as the views arrived) and used.
     pairs_before: int = 0
 
+    @property
+    def left_out(self) -> tuple[int, ...]:
+        """The hangings (0-based) left out of the model: their alignment did not verify."""
+        return tuple(a.hanging for a in self.alignments if not a.verified)
+
 
 def build_surfaces(
     views: Sequence[ViewCloud],
@@ -216,6 +217,7 @@ def reconstruct_views(
     eyes_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
     fixtures: Sequence[FixtureLine] = (),
     arriving: ArrivingPairs | None = None,
+    leave_out_unaligned: bool = False,
 ) -> ReconstructionResult:
     """The whole reconstruction on in-memory views (see the module docstring).
 
@@ -237,6 +239,9 @@ def reconstruct_views(
             hangings, or one per hanging); the model is guarded against a strip along it.
         arriving: the pairs registered while the views arrived (the view stream), used when
             they are this run's first views with these clouds, X_FC and ICP settings.
+        leave_out_unaligned: a hanging whose alignment fails its verification is left out of
+            the model (its views in no result but the coverage per hanging, its alignment
+            recorded unverified) instead of refusing the whole result.
 
     Returns:
         The views' poses (kinematic, registered, final), the registration edges, the X_FC used
@@ -244,8 +249,8 @@ def reconstruct_views(
         skipped views and notes, the hangings' alignments and the coverage estimate.
 
     Raises:
-        ScannerError: fewer usable views than `config.min_views`, or a hanging whose alignment
-            fails its verification."""
+        ScannerError: fewer usable views than `config.min_views`, or (RefusedResultError) a
+            hanging whose alignment fails its verification, unless `leave_out_unaligned`."""
     X_FC_nominal = check_pose(X_FC_nominal, "X_FC_nominal")
     indices = [v.index for v in views]
     if len(set(indices)) != len(indices):
@@ -359,64 +364,60 @@ def reconstruct_views(
         # The rod and the robot once more, each view at its final pose in its hanging's frame.
         with timer("filter"):
             clouds = [refiltered(c, X, remove_points) for c, X in zip(clouds, X_WC)]
-    alignments: tuple[PassAlignment, ...] = ()
-    if len(groups) > 1 and "poisson" in config.surfaces.methods:
+    voxel_m = config.surfaces.fused_voxel_size_m
+    with timer("align") if len(groups) > 1 else nullcontext():
+        placed = place_hangings(
+            views,
+            clouds,
+            X_WC,
+            groups,
+            config.alignment,
+            voxel_m,
+            fixtures,
+            remove_points,
+            leave_out_unaligned,
+        )
+    X_WC, alignments, kept = placed.X_WC, placed.alignments, placed.kept
+    hanging_of = {k: h for h, group in enumerate(groups) for k in group}
+    if len(groups) - len(placed.left_out) > 1 and "poisson" in config.surfaces.methods:
         # Hangings together surround the object: its closed model comes from the same solve.
         methods = tuple(dict.fromkeys((*config.surfaces.methods, "poisson_closed")))
         config = replace(config, surfaces=replace(config.surfaces, methods=methods))
-    if len(groups) > 1:
-        with timer("align"):
-            X_WC, alignments = align_hangings(
-                views, clouds, X_WC, groups, config.alignment, config.surfaces.fused_voxel_size_m
-            )
-    hanging_of = {k: h for h, group in enumerate(groups) for k in group}
-    T_of = to_first_frame(alignments)
-    if fixtures:
-        lines = list(fixtures) * (len(groups) if len(fixtures) == 1 else 1)
-        fixtures = [line.moved(T) for line, T in zip(lines, T_of, strict=True)]
-    if remove_points is not None and len(groups) > 1:
-        remove_points = in_own_frames(
-            remove_points, T_of, {v.index: hanging_of[k] for k, v in enumerate(views)}
-        )
     coverage: list[Coverage] = []
 
     def estimate_coverage(fused: FusedCloud) -> None:
         with timer("coverage"):
             eyes = [eyes_of(v.index, X) for v, X in zip(views, X_WC)]
-            coverage.append(coverage_estimate(fused, eyes))
+            coverage.append(coverage_estimate(fused, [eyes[k] for k in kept]))
             for group in map(sorted, groups if len(groups) > 1 else ()):
-                alone = fuse_clouds(
-                    [clouds[k] for k in group],
-                    [X_WC[k] for k in group],
-                    config.surfaces.fused_voxel_size_m,
-                )
+                alone = fuse_clouds([clouds[k] for k in group], [X_WC[k] for k in group], voxel_m)
                 coverage.append(coverage_estimate(alone, [eyes[k] for k in group]))
 
     fused, meshes, surface_notes = build_surfaces(
-        views,
-        clouds,
-        X_WC,
+        [views[k] for k in kept],
+        [clouds[k] for k in kept],
+        [X_WC[k] for k in kept],
         config,
-        remove_points,
+        placed.remove_points,
         timer,
         estimate_coverage if eyes_of is not None else None,
-        fixtures,
+        placed.fixtures,
     )
     fused_nominal = None
     if handeye is not None and not handeye.diagnosis.converged:
         # Nothing is lost: the model at the nominal poses stays beside the doubtful one.
-        fused_nominal = fuse_clouds(clouds, X_WC_kin, config.surfaces.fused_voxel_size_m)
+        fused_nominal = fuse_clouds([clouds[k] for k in kept], [X_WC_kin[k] for k in kept], voxel_m)
     notes += surface_notes
     view_results = tuple(
         ViewResult(
-            v.index,
-            c.counts,
+            views[k].index,
+            clouds[k].counts,
             X_WC_kin[k],
             None if registered.X_WC is None else registered.X_WC[k],
             X_WC[k],
             hanging_of[k],
         )
-        for k, (v, c) in enumerate(zip(views, clouds))
+        for k in kept
     )
     return ReconstructionResult(
         views=view_results,
@@ -429,7 +430,7 @@ def reconstruct_views(
         timings_s=timer.seconds,
         skipped_views=tuple(skipped),
         notes=tuple(notes),
-        clouds=tuple(clouds),
+        clouds=tuple(clouds[k] for k in kept),
         alignments=alignments,
         fused_nominal=fused_nominal,
         coverage=coverage[0] if coverage else None,

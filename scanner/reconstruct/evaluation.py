@@ -25,16 +25,20 @@ from scanner.configs.scan import ProcessingConfig
 from scanner.reconstruct.scan_views import Gathered
 
 
-def _true_eyes(views: Gathered, to_first: list[np.ndarray]) -> dict[int, np.ndarray]:
+def _true_eyes(
+    views: Gathered, to_first: list[np.ndarray], left_out: tuple[int, ...] = ()
+) -> dict[int, np.ndarray]:
     """True left and right camera centres (2, 3) of every view (by capture index), in the first
     hanging's frame (`to_first`: per hanging, the true transform of its placement onto the
-    first's)."""
+    first's); none of the hangings `left_out` of the model."""
     from robots.models.kinematics import Kinematics
 
     hanging_of = {i: h for h, indices in enumerate(views.hangings) for i in indices}
     kin = Kinematics()
     eyes = {}
     for i, q in views.joints.items():
+        if hanging_of[i] in left_out:
+            continue
         truth = views.truths[views.scan_of[i]][0]
         X_WC = kin.X_WF(q + truth.joint_offsets_rad) @ truth.X_FC
         eyes[i] = transform_points(
@@ -66,13 +70,18 @@ def _pass_observed(surface, eyes: list[np.ndarray]) -> float:
 
 
 def hangings_report(result, views: Gathered, to_first) -> dict:
-    """Per hanging its views, coverage and alignment figures, and (with truth) its observed
-    fraction and alignment errors."""
+    """Per hanging its views, coverage and alignment figures (a hanging left out of the model:
+    `left_out` and the checks it failed), and (with truth) its observed fraction and
+    alignment errors (a left-out hanging's: of its best, unverified fit)."""
     surface = views.truths[0][1] if to_first is not None else None
     true_eyes = _true_eyes(views, to_first) if to_first is not None else {}
+    usable = {v.index for v in views.views}
     passes = []
     for h in range(len(views.hangings)):
-        indices = [v.index for v in result.views if v.hanging == h]
+        if h in result.left_out:  # its views are in no pose of the result
+            indices = [i for i in views.hangings[h] if i in usable]
+        else:
+            indices = [v.index for v in result.views if v.hanging == h]
         record: dict = {
             "hanging": h + 1,
             "views": len(indices),
@@ -90,13 +99,15 @@ def hangings_report(result, views: Gathered, to_first) -> dict:
                 ambiguity=a.ambiguity,
                 verified=a.verified,
             )
+            if not a.verified:
+                record.update(left_out=True, failures=list(a.failures))
             if surface is not None:
                 points_h = transform_points(invert(to_first[h]), surface.vertices)
                 dt, dr = alignment_error(a.T, to_first[h], points_h)
                 record.update(alignment_error_mm=1e3 * dt, alignment_error_deg=math.degrees(dr))
         passes.append(record)
     out: dict = {"hangings": passes}
-    errors = [p for p in passes if "alignment_error_mm" in p]
+    errors = [p for p in passes if "alignment_error_mm" in p and not p.get("left_out")]
     if errors:
         out["alignment_error_mm"] = max(p["alignment_error_mm"] for p in errors)
         out["alignment_error_deg"] = max(p["alignment_error_deg"] for p in errors)
@@ -130,10 +141,10 @@ def evaluate(
     return out
 
 
-def observed_samples(views: Gathered, processing: ProcessingConfig, to_first):
-    """Samples of the first scan's true surface and which of them the true views saw: needs
-    only the truth, so it can be computed while the views are registered."""
-    eyes = list(_true_eyes(views, to_first).values())
+def observed_samples(views: Gathered, processing: ProcessingConfig, to_first, left_out=()):
+    """Samples of the first scan's true surface and which of them the true views saw (not
+    those of the hangings `left_out` of the model)."""
+    eyes = list(_true_eyes(views, to_first, left_out).values())
     return truth_sampling(views.truths[0][1], eyes, processing.metric_samples)
 
 
@@ -145,8 +156,12 @@ def truth_metrics(
     `observed_samples`, when already computed."""
     truth = views.truths[0]
     if truth_samples is None:
-        truth_samples = observed_samples(views, processing, to_first)
-    fixtures = [line.moved(T) for line, T in zip(views.fixtures, to_first or [], strict=False)]
+        truth_samples = observed_samples(views, processing, to_first, result.left_out)
+    fixtures = [
+        line.moved(T)
+        for h, (line, T) in enumerate(zip(views.fixtures, to_first or [], strict=False))
+        if h not in result.left_out
+    ]
     metrics = evaluate(
         result, truth[0], truth[1], processing.metric_samples, truth_samples, fixtures
     )

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from reconstruction.hangings.merge import to_first_frame
 from reconstruction.pipeline import ReconstructionResult
 from reconstruction.stereo.camera_model import StereoCamera
 from scanner.configs.scan import ProcessingConfig
@@ -78,10 +79,11 @@ def colouring(
 
 
 def _fixture_segments(views: Gathered, result: ReconstructionResult, rod_top_z_m: float):
-    """Every hanging's rod axis in the first hanging's frame, up to the rod's top."""
-    T_of = [np.eye(4)] + [a.T for a in sorted(result.alignments, key=lambda a: a.hanging)]
+    """Every placed hanging's rod axis in the first hanging's frame, up to the rod's top."""
     segments = []
-    for line, T in zip(views.fixtures, T_of, strict=False):
+    for line, T in zip(views.fixtures, to_first_frame(result.alignments), strict=False):
+        if T is None:  # a hanging left out of the model
+            continue
         moved = line.moved(T)
         p, u = np.array(moved.p_W), np.array(moved.u_W)
         length = rod_top_z_m - p[2] if u[2] > 0.99 else ROD_ABOVE_M

@@ -183,8 +183,10 @@ def run_reconstruct(
     on_model: Callable[[ModelWritten], None] | None = None,
 ) -> ReconstructRun:
     """Reconstruct a saved scan (a directory, or one already opened), or merge a list of opened
-    scans into one model: every hanging of every scan aligned into the first one's frame
-    (refused, with nothing written, when an alignment does not verify). Defaults: the (first)
+    scans into one model: every hanging of every scan aligned into the first one's frame. A
+    scan's hanging whose alignment does not verify is left out of its model (the report says
+    which and why; its self-check fails); a merge is refused then, with nothing written (the
+    scans may be of different objects). Defaults: the (first)
     scan's own processing settings, camera model and X_FC (from its manifest); results in its
     SCAN_DIR/results, written as a whole or not at all.
     `streamed`: per-view results computed while the scan ran (used where the settings match);
@@ -276,6 +278,7 @@ def _reconstruct(
             eyes_of,
             views.fixtures,
             arriving,
+            leave_out_unaligned=len(scans) == 1,
         )
 
     report: dict = {
@@ -320,7 +323,7 @@ def _reconstruct(
         if to_first is not None:
             with timer("evaluate"):
                 # The truth's side (ray casting from every true view), then the surfaces on it.
-                truth_samples = observed_samples(views, processing, to_first)
+                truth_samples = observed_samples(views, processing, to_first, result.left_out)
                 report.update(truth_metrics(result, views, processing, to_first, truth_samples))
             if hangings:
                 report.update(hangings_report(result, views, to_first))

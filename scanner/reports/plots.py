@@ -91,9 +91,10 @@ HANGINGS_MAX_POINTS = 60_000  # more dots than the 550 x 550 px panels can show;
 def _hangings_map(result: ReconstructionResult, path: Path) -> None:
     """The merged cloud in two orthographic views, each hanging's points in its own colour."""
     fig, axes = plt.subplots(1, 2, figsize=(10, 5))
-    per_pass = HANGINGS_MAX_POINTS // max(1, len(result.alignments) + 1)
+    placed = sorted({v.hanging for v in result.views})  # a hanging left out has no points
+    per_pass = HANGINGS_MAX_POINTS // max(1, len(placed))
     rng = np.random.default_rng(0)
-    for h in range(len(result.alignments) + 1):
+    for h in placed:
         points = [
             transform_points(v.X_WC, c.points_C)
             for v, c in zip(result.views, result.clouds)

@@ -8,7 +8,8 @@ code must not take a distorted model for a good one.
 The checks are those judged without truth, so that they mean the same on a real cell:
 - the hand-eye correction converged (`reconstruction.handeye.diagnosis`);
 - every hanging's alignment verified (a merge refuses an unverified one outright, exit 3; a
-  result that records one as unverified fails here).
+  scan's reconstruction leaves the hanging out of its model, writes the model of the others
+  and fails here, as does any result that records an unverified one).
 """
 
 from __future__ import annotations
@@ -23,7 +24,14 @@ def self_check_failures(report: dict) -> list[str]:
         why = "; ".join(report.get("handeye_diagnosis", {}).get("failures", []))
         failures.append("the hand-eye correction did not converge" + (f" ({why})" if why else ""))
     for p in report.get("hangings", []):
-        if p.get("verified") is False:
+        if p.get("left_out"):
+            why = "; ".join(p.get("failures", []))
+            failures.append(
+                f"hanging {p['hanging']} did not align with the hangings before it"
+                + (f" ({why})" if why else "")
+                + " and is left out of the model (scanner scan --resume scans it again)"
+            )
+        elif p.get("verified") is False:
             failures.append(f"hanging {p['hanging']}'s alignment did not verify")
     return failures
 

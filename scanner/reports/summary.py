@@ -35,9 +35,26 @@ def _hangings_lines(report: dict) -> list[str]:
         lines.append(
             f"| {p['hanging']} | {p['views']} | {_fmt(p.get('overlap', '-'))} | "
             f"{_fmt(p.get('inlier_rms_mm', '-'))} | {_fmt(p.get('free_space_violation', '-'))} | "
-            f"{p.get('verified', 'reference')} | {error} |"
+            f"{'left out' if p.get('left_out') else p.get('verified', 'reference')} | {error} |"
         )
     return lines
+
+
+def left_out_warning(report: dict) -> str | None:
+    """The warning for hangings left out of the model (None when every hanging is in it)."""
+    left = [p for p in report.get("hangings", []) if p.get("left_out")]
+    if not left:
+        return None
+    words = "; ".join(
+        f"hanging {p['hanging']} ({'; '.join(p.get('failures', [])) or 'not verified'})"
+        for p in left
+    )
+    return (
+        f"WARNING: left out of the model, not aligned with the hangings before them: {words}. "
+        "The model is that of the other hangings; the captures are kept. "
+        "`scanner scan --resume SCAN_DIR` scans the first of them again (its captures and "
+        "these results are moved aside to SCAN_DIR/set_aside/, not deleted)."
+    )
 
 
 def _decision_lines(report: dict) -> list[str]:
@@ -234,9 +251,9 @@ def _handeye_lines(report: dict) -> list[str]:
 
 def write_summary(report: dict, out: Path) -> Path:
     lines = ["# Scan result", ""]
-    warning = handeye_warning(report)
-    if warning:
-        lines += [f"**{warning}**", ""]
+    for warning in (handeye_warning(report), left_out_warning(report)):
+        if warning:
+            lines += [f"**{warning}**", ""]
     lines += _run_lines(report)
     lines += _metric_lines(report)
     if "coverage_estimate" in report:
