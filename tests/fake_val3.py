@@ -85,9 +85,13 @@ class FakeController:
         self._motion = socket.create_server(("127.0.0.1", 0))
         self._state = socket.create_server(("127.0.0.1", 0))
         self._sockets: list[socket.socket] = [self._motion, self._state]
-        self._connections = 0
-        for target in (self._serve_motion, self._serve_state, self._move):
-            threading.Thread(target=target, daemon=True).start()
+        threads = [
+            (self._serve, (self._motion, self._serve_client)),
+            (self._serve, (self._state, self._stream)),
+            (self._move, ()),
+        ]
+        for target, args in threads:
+            threading.Thread(target=target, args=args, daemon=True).start()
 
     @property
     def ports(self) -> tuple[int, int]:
@@ -96,6 +100,21 @@ class FakeController:
     def fault(self) -> None:
         """Record the moment the fault was applied."""
         self.fault_at_s = time.monotonic()
+
+    def fault_at(self, at: int | Callable[[Request], bool], fault: Callable) -> None:
+        """Answer the request `at` (a sequence number, or a test of the request) with
+        `fault(request, normal)`, recording the fault's moment, unless that returns None (not
+        this time: the normal reply); every other request gets the normal reply."""
+        chosen = at if callable(at) else lambda request: request.point.sequence == at
+
+        def answer(request: Request, normal: bytes) -> Answer:
+            faulty = fault(request, normal) if chosen(request) else None
+            if faulty is None:
+                return [(0.0, normal)]
+            self.fault()
+            return faulty
+
+        self.answer = answer
 
     def sent_after(self, t_s: float, closed: int | None = None) -> list[int]:
         """The sequence numbers the driver sent after t_s; with `closed`, once the driver has
@@ -145,17 +164,18 @@ class FakeController:
 
     # -- the ports ----------------------------------------------------------------------------
 
-    def _serve_motion(self) -> None:
+    def _serve(self, listener: socket.socket, handle: Callable[[socket.socket, int], None]):
+        """Each connection to `listener` handled by `handle(conn, its number: 1, 2, ...)` in a
+        thread of its own."""
+        number = 0
         while not self._stopping.is_set():
             try:
-                conn, _ = self._motion.accept()
+                conn, _ = listener.accept()
             except OSError:
                 return
-            self._connections += 1
+            number += 1
             self._sockets.append(conn)
-            threading.Thread(
-                target=self._serve_client, args=(conn, self._connections), daemon=True
-            ).start()
+            threading.Thread(target=handle, args=(conn, number), daemon=True).start()
 
     def _serve_client(self, conn: socket.socket, connection: int) -> None:
         try:
@@ -174,16 +194,7 @@ class FakeController:
             with self._lock:
                 self.closed_connections.append(connection)
 
-    def _serve_state(self) -> None:
-        while not self._stopping.is_set():
-            try:
-                conn, _ = self._state.accept()
-            except OSError:
-                return
-            self._sockets.append(conn)
-            threading.Thread(target=self._stream, args=(conn,), daemon=True).start()
-
-    def _stream(self, conn: socket.socket) -> None:
+    def _stream(self, conn: socket.socket, _connection: int) -> None:
         count = 0
         try:
             while not self._stopping.wait(self.joint_period_s):

@@ -28,9 +28,13 @@ def emu() -> Iterator[Val3Emulator]:
         yield emulator
 
 
-def connect(address: tuple[str, int]) -> socket.socket:
-    sock = socket.create_connection(address, timeout=READ_TIMEOUT_S)
+def connect(address: tuple[str, int], receive_buffer_bytes: int = 0) -> socket.socket:
+    """A client; receive_buffer_bytes > 0 sets its SO_RCVBUF (for a client that never reads)."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    if receive_buffer_bytes > 0:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer_bytes)
     sock.settimeout(READ_TIMEOUT_S)
+    sock.connect(address)
     return sock
 
 

@@ -17,33 +17,13 @@ import pytest
 
 from robots.drivers import simple_message as sm
 from robots.emulator.val3_server import EmulatorSettings, Val3Emulator
+from tests.test_val3_emulator import READ_TIMEOUT_S, connect, point, request
 
 Q0 = np.zeros(6)
 LIMIT_S = 0.3
 SETTINGS = EmulatorSettings(
     motion_port=0, state_port=0, connect_delay_s=0.05, time_scale=20.0, client_timeout_s=LIMIT_S
 )
-READ_TIMEOUT_S = 2.0
-
-
-def connect(address: tuple[str, int], receive_buffer_bytes: int = 0) -> socket.socket:
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    if receive_buffer_bytes:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer_bytes)
-    sock.settimeout(READ_TIMEOUT_S)
-    sock.connect(address)
-    return sock
-
-
-def point(seq: int, q: np.ndarray, velocity: float = 0.5) -> bytes:
-    return sm.encode_traj_pt(sm.JointTrajPt(seq, np.asarray(q, float), velocity))
-
-
-def request(sock: socket.socket, packet: bytes) -> tuple[int, int]:
-    """Send a point, return (sequence, reply_code) of its reply."""
-    sock.sendall(packet)
-    header, body = sm.read_packet(sock, {sm.JOINT_TRAJ_PT})
-    return sm.decode_traj_pt(body).sequence, header.reply_code
 
 
 def closed_within(sock: socket.socket, seconds: float) -> bool:

@@ -18,7 +18,7 @@ from robots.drivers import staubli_val3
 from robots.drivers.interfaces import JointTrajectory
 from robots.drivers.settings import RobotLinkConfig
 from robots.drivers.staubli_val3 import RobotStoppedError, Val3Robot
-from tests.fake_val3 import FakeController, Request, reply, reply_code
+from tests.fake_val3 import FakeController, reply, reply_code
 
 Q0 = np.array([0.0, -0.4, 2.3, 0.0, 0.8, 0.0])
 STATE_TIMEOUT_S = 0.3
@@ -32,6 +32,13 @@ STOP = sm.STOP_TRAJECTORY
 def fake():
     with FakeController(Q0) as controller:
         yield controller
+
+
+@pytest.fixture
+def robot(fake):
+    driver = connect(fake)
+    yield driver
+    driver.close()
 
 
 def connect(fake: FakeController, **fields) -> Val3Robot:
@@ -53,35 +60,23 @@ def trajectory(n: int = 30, step_rad: float = 0.01) -> JointTrajectory:
     return JointTrajectory(np.linspace(0.0, 1.0, n), q, joint_linear=True)
 
 
-def at_request(k: int, fault):
-    """An answer script: the normal reply, except to the request with sequence k (the k-th
-    point while the queue takes every point), which gets `fault(request, normal)`'s answer."""
-    return when(lambda request: request.point.sequence == k, fault)
-
-
-def when(condition, fault):
-    def answer(request: Request, normal: bytes):
-        if condition(request):
-            return fault(request, normal)
-        return [(0.0, normal)]
-
-    return answer
-
-
 def topic(packet: bytes) -> bytes:
     """The same reply sent as a TOPIC."""
     return sm.packet(sm.Header(sm.JOINT_TRAJ_PT, sm.TOPIC, sm.SUCCESS), packet[16:])
 
 
-def stopped(robot: Val3Robot, match: str) -> tuple[RobotStoppedError, float]:
-    """Execute the standard trajectory; the error it ends with and when it came."""
+def stops_at_once(fake, robot, at, fault, match, closed=None, within_s=STATE_TIMEOUT_S):
+    """Run the standard trajectory with the request `at` answered by `fault` (FakeController.
+    fault_at; a sequence number is the k-th point while the queue takes every point): it must
+    end in one line matching `match`, only the stop sent after the fault (once the driver
+    closed motion connection `closed`, when given), the fault seen within `within_s`."""
+    fake.fault_at(at, fault)
     with pytest.raises(RobotStoppedError, match=match) as error:
         robot.execute(trajectory())
-    return error.value, time.monotonic()
-
-
-def one_line(error: Exception) -> None:
-    assert "\n" not in str(error)
+    seen_s = time.monotonic()
+    assert "\n" not in str(error.value)
+    assert seen_s - fake.fault_at_s <= within_s
+    assert fake.sent_after(fake.fault_at_s, closed=closed) == [STOP]
 
 
 # --- 1. NaN and infinities -------------------------------------------------------------------
@@ -94,69 +89,39 @@ def test_nan_joints_from_the_start_refuse_the_connection_and_nothing_is_sent(fak
     assert fake.requests == []
 
 
-def test_a_nan_joint_before_a_motion_refuses_it_and_never_reaches_the_caller(fake):
-    robot = connect(fake)
-    try:
-        fake.joints_wire = [math.inf, -0.4, 2.3, 0.0, 0.8, 0.0]
-        time.sleep(0.1)
-        with pytest.raises(RobotStoppedError, match=r"joints\[0\]: inf is not a finite"):
-            robot.joint_positions()
-        with pytest.raises(RobotStoppedError, match="state stream lost"):
-            robot.execute(trajectory())
-        assert fake.sent_after(0.0) in ([], [STOP])
-    finally:
-        robot.close()
+def test_a_nan_joint_before_a_motion_refuses_it_and_never_reaches_the_caller(fake, robot):
+    fake.joints_wire = [math.inf, -0.4, 2.3, 0.0, 0.8, 0.0]
+    time.sleep(0.1)
+    with pytest.raises(RobotStoppedError, match=r"joints\[0\]: inf is not a finite"):
+        robot.joint_positions()
+    with pytest.raises(RobotStoppedError, match="state stream lost"):
+        robot.execute(trajectory())
+    assert fake.sent_after(0.0) in ([], [STOP])
 
 
-def test_a_nan_joint_mid_motion_stops_the_arm_at_once(fake):
-    robot = connect(fake)
-
+def test_a_nan_joint_mid_motion_stops_the_arm_at_once(fake, robot):
     def nan_then_reply(request, normal):
-        fake.fault()
         fake.joints_wire = [0.03, math.nan, 2.33, 0.03, 0.83, 0.03]
         return [(0.05, normal)]  # the NaN reading reaches the driver before this reply
 
-    fake.answer = at_request(3, nan_then_reply)
-    try:
-        error, seen_s = stopped(robot, r"joints\[1\]: nan is not a finite number")
-        one_line(error)
-        assert fake.sent_after(fake.fault_at_s) == [STOP]
-        assert seen_s - fake.fault_at_s <= STATE_TIMEOUT_S
-        with pytest.raises(RobotStoppedError):
-            robot.joint_positions()
-    finally:
-        robot.close()
+    stops_at_once(fake, robot, 3, nan_then_reply, r"joints\[1\]: nan is not a finite number")
+    with pytest.raises(RobotStoppedError):
+        robot.joint_positions()
 
 
-def test_a_nan_in_a_reply_is_a_protocol_error_naming_the_field(fake):
-    robot = connect(fake)
+def test_a_nan_in_a_reply_is_a_protocol_error_naming_the_field(fake, robot):
     bad = bytearray(reply(4))
     bad[16 + 44 : 16 + 48] = struct.pack("<f", math.nan)  # the velocity field
-
-    def nan_reply(request, normal):
-        fake.fault()
-        return [(0.0, bytes(bad))]
-
-    fake.answer = at_request(4, nan_reply)
-    try:
-        error, seen_s = stopped(robot, r"robot link: .*velocity: nan is not a finite number")
-        one_line(error)
-        assert fake.sent_after(fake.fault_at_s, closed=1) == [STOP]
-        assert seen_s - fake.fault_at_s <= STATE_TIMEOUT_S
-    finally:
-        robot.close()
+    match = r"robot link: .*velocity: nan is not a finite number"
+    stops_at_once(fake, robot, 4, lambda request, normal: [(0.0, bytes(bad))], match, closed=1)
 
 
-def test_a_trajectory_with_a_nan_is_refused_before_anything_is_sent(fake):
-    robot = connect(fake)
-    try:
-        q = trajectory().positions_rad.copy()
-        q[5, 2] = math.nan
-        with pytest.raises(ValueError, match="not finite"):
-            robot.execute(JointTrajectory(np.linspace(0, 1, len(q)), q, joint_linear=True))
-        assert fake.requests == []
-    finally:
-        robot.close()
+def test_a_trajectory_with_a_nan_is_refused_before_anything_is_sent(fake, robot):
+    q = trajectory().positions_rad.copy()
+    q[5, 2] = math.nan
+    with pytest.raises(ValueError, match="not finite"):
+        robot.execute(JointTrajectory(np.linspace(0, 1, len(q)), q, joint_linear=True))
+    assert fake.requests == []
 
 
 def test_a_nan_deviation_fails_every_check_that_lets_the_arm_move():
@@ -177,155 +142,99 @@ def test_a_nan_deviation_fails_every_check_that_lets_the_arm_move():
     [
         (lambda seq: reply(seq - 1), r"answered point 5 with the reply to point 4"),
         (lambda seq: reply(seq + 7), r"answered point 5 with the reply to point 12"),
-        (
-            lambda seq: sm.packet(
-                sm.Header(sm.JOINT_TRAJ_PT, sm.TOPIC, sm.SUCCESS), reply(seq)[16:]
-            ),
-            r"sent comm type 1 where point 5's reply was due",
-        ),
+        (lambda seq: topic(reply(seq)), r"sent comm type 1 where point 5's reply was due"),
         (lambda seq: reply(seq, sm.INVALID), r"answered point 5 with reply code 0"),
     ],
     ids=["previous sequence", "other sequence", "a topic", "reply code invalid"],
 )
-def test_a_reply_out_of_step_stops_and_closes_the_motion_connection(fake, wrong, match):
-    robot = connect(fake)
-
+def test_a_reply_out_of_step_stops_and_closes_the_motion_connection(fake, robot, wrong, match):
     def out_of_step(request, normal):
-        fake.fault()
         return [(0.0, wrong(request.point.sequence))]
 
-    fake.answer = at_request(5, out_of_step)
-    try:
-        error, seen_s = stopped(robot, "robot link: .*" + match)
-        one_line(error)
-        assert fake.sent_after(fake.fault_at_s, closed=1) == [STOP]
-        assert seen_s - fake.fault_at_s <= STATE_TIMEOUT_S
-    finally:
-        robot.close()
+    stops_at_once(fake, robot, 5, out_of_step, "robot link: .*" + match, closed=1)
 
 
-def test_a_duplicate_reply_stops_before_the_next_point(fake):
-    robot = connect(fake)
-
-    def twice(request, normal):
-        fake.fault()
-        return [(0.0, normal + normal)]
-
-    fake.answer = at_request(6, twice)
-    try:
-        error, seen_s = stopped(robot, "robot link: .* sent a reply to no request")
-        one_line(error)
-        assert fake.sent_after(fake.fault_at_s, closed=1) == [STOP]
-        assert seen_s - fake.fault_at_s <= STATE_TIMEOUT_S
-    finally:
-        robot.close()
+def test_a_duplicate_reply_stops_before_the_next_point(fake, robot):
+    twice = lambda request, normal: [(0.0, normal + normal)]  # noqa: E731
+    stops_at_once(fake, robot, 6, twice, "robot link: .* sent a reply to no request", closed=1)
 
 
-def test_a_reply_to_nothing_while_the_arm_runs_on_stops_it(fake):
-    robot = connect(fake)
+def test_a_reply_to_nothing_while_the_arm_runs_on_stops_it(fake, robot):
     goal = trajectory().positions_rad[-1]
 
     def then_a_stray(request, normal):
         if reply_code(normal) != sm.SUCCESS:
-            return [(0.0, normal)]  # the queue was full: it comes again
-        fake.fault()
+            return None  # the queue was full: the point comes again
         # The arm, 20 ms a point with up to 10 queued, is still on its way 50 ms later.
         return [(0.0, normal), (0.05, reply(request.point.sequence))]
 
     last = lambda request: np.allclose(request.point.joints_rad, goal, atol=1e-6)  # noqa: E731
-    fake.answer = when(last, then_a_stray)
-    try:
-        error, seen_s = stopped(robot, "robot link: .* sent a reply to no request")
-        one_line(error)
-        assert fake.sent_after(fake.fault_at_s, closed=1) == [STOP]
-        assert seen_s - fake.fault_at_s <= STATE_TIMEOUT_S
-    finally:
-        robot.close()
+    match = "robot link: .* sent a reply to no request"
+    stops_at_once(fake, robot, last, then_a_stray, match, closed=1)
 
 
-def test_a_late_reply_closes_the_link_and_a_reused_driver_pairs_replies_right(fake):
-    robot = connect(fake)
-
-    def late(request, normal):
-        fake.fault()
-        return [(STATE_TIMEOUT_S + 0.2, normal)]
-
-    fake.answer = at_request(7, late)
-    try:
-        error, seen_s = stopped(robot, r"robot link: no reply to point 7 .* within 0.3 s")
-        one_line(error)
-        assert seen_s - fake.fault_at_s <= STATE_TIMEOUT_S + 0.1  # the limit itself, and the stop
-        # The late reply goes out on a connection the driver has closed.
-        assert fake.sent_after(fake.fault_at_s, closed=1) == [STOP]
-        # The next motion, on a new connection, is refused point by point: the driver must
-        # report it, not read an old reply as the answer to a refused point.
-        fake.answer = lambda request, normal: [(0.0, normal)]
-        fake.refuse_all = True
-        q = fake.q_rad + np.arange(3)[:, None] * 0.01
-        second_s = time.monotonic()
-        with pytest.raises(RobotStoppedError, match="refused point 1 of 2 with the arm at rest"):
-            robot.execute(JointTrajectory(np.linspace(0, 1, 3), q, joint_linear=True))
-        assert {r.connection for r in fake.requests if r.at_s > second_s} == {2}
-    finally:
-        robot.close()
+def test_a_late_reply_closes_the_link_and_a_reused_driver_pairs_replies_right(fake, robot):
+    late = lambda request, normal: [(STATE_TIMEOUT_S + 0.2, normal)]  # noqa: E731
+    match = r"robot link: no reply to point 7 .* within 0.3 s"
+    # Seen at the limit itself, the stop sent and the connection closed after it; the late
+    # reply then goes out on a connection the driver has closed.
+    stops_at_once(fake, robot, 7, late, match, closed=1, within_s=STATE_TIMEOUT_S + 0.1)
+    # The next motion, on a new connection, is refused point by point: the driver must report
+    # it, not read an old reply as the answer to a refused point.
+    fake.answer = lambda request, normal: [(0.0, normal)]
+    fake.refuse_all = True
+    q = fake.q_rad + np.arange(3)[:, None] * 0.01
+    second_s = time.monotonic()
+    with pytest.raises(RobotStoppedError, match="refused point 1 of 2 with the arm at rest"):
+        robot.execute(JointTrajectory(np.linspace(0, 1, 3), q, joint_linear=True))
+    assert {r.connection for r in fake.requests if r.at_s > second_s} == {2}
 
 
 # --- 3. STATUS has its own age limit ---------------------------------------------------------
 
 
-def test_a_stale_status_stops_the_arm_though_joints_keep_coming(fake):
-    robot = connect(fake)
-
+def test_a_stale_status_stops_the_arm_though_joints_keep_coming(fake, robot):
     def status_stops(request, normal):
         fake.send_status = False
-        fake.fault()
         return [(0.0, normal)]
 
-    fake.answer = at_request(2, status_stops)
-    try:
-        error, seen_s = stopped(robot, r"robot link: no STATUS from .* for 0\.3\d s")
-        one_line(error)
-        last_status_s = max(t for t in fake.status_sent_at if t <= fake.fault_at_s)
-        with fake._lock:
-            requests = list(fake.requests)
-        # No point went out on a STATUS older than the limit (20 ms: the send after the check).
-        for request in requests:
-            if request.point.sequence != STOP and request.at_s > last_status_s:
-                assert request.at_s - last_status_s <= STATE_TIMEOUT_S + 0.02
-        assert requests[-1].point.sequence == STOP
-        assert seen_s - last_status_s <= STATE_TIMEOUT_S + STATUS_SLACK_S
-    finally:
-        robot.close()
+    fake.fault_at(2, status_stops)
+    with pytest.raises(RobotStoppedError, match=r"robot link: no STATUS from .* for 0\.3\d s"):
+        robot.execute(trajectory())
+    seen_s = time.monotonic()
+    stopped_s = max(t for t in fake.status_sent_at)  # the last STATUS sent
+    with fake._lock:
+        requests = list(fake.requests)
+    # No point went out on a STATUS older than the limit (20 ms: the send after the check).
+    for request in requests:
+        if request.point.sequence != STOP and request.at_s > stopped_s:
+            assert request.at_s - stopped_s <= STATE_TIMEOUT_S + 0.02
+    assert requests[-1].point.sequence == STOP
+    assert seen_s - stopped_s <= STATE_TIMEOUT_S + STATUS_SLACK_S
 
 
 # --- 6. motion only on fresh state, and a give-up message that does not guess -----------------
 
 
-def test_no_motion_is_sent_on_state_that_stopped_coming_before_it_was_asked(fake):
-    robot = connect(fake)
-    try:
-        fake.send_joints = fake.send_status = False
-        fake.fault()
-        time.sleep(0.15)  # younger than the state timeout, but older than the call
-        with pytest.raises(RobotStoppedError, match="no joint state"):
-            robot.execute(trajectory())
-        assert fake.sent_after(fake.fault_at_s) in ([], [STOP])
-        assert time.monotonic() - fake.fault_at_s <= STATE_TIMEOUT_S + STATUS_SLACK_S
-    finally:
-        robot.close()
+def test_no_motion_is_sent_on_state_that_stopped_coming_before_it_was_asked(fake, robot):
+    fake.send_joints = fake.send_status = False
+    fake.fault()
+    time.sleep(0.15)  # younger than the state timeout, but older than the call
+    with pytest.raises(RobotStoppedError, match="no joint state"):
+        robot.execute(trajectory())
+    assert fake.sent_after(fake.fault_at_s) in ([], [STOP])
+    assert time.monotonic() - fake.fault_at_s <= STATE_TIMEOUT_S + STATUS_SLACK_S
 
 
-def test_a_queue_held_too_long_is_given_up_without_guessing_why(fake, monkeypatch):
+def test_a_queue_held_too_long_is_given_up_without_guessing_why(fake, robot, monkeypatch):
     monkeypatch.setattr(staubli_val3, "POINT_SETTLE_S", 0.0)
     monkeypatch.setattr(staubli_val3, "DRAIN_MARGIN_S", 0.2)
     fake.hold = True
-    robot = connect(fake)
-    try:
-        error, _ = stopped(robot, r"refused point 11 of 29 for 0\.\d s, longer than its queue")
-        assert "joint limits" not in str(error)
-        assert fake.sent_after(0.0)[-1] == STOP
-    finally:
-        robot.close()
+    match = r"refused point 11 of 29 for 0\.\d s, longer than its queue"
+    with pytest.raises(RobotStoppedError, match=match) as error:
+        robot.execute(trajectory())
+    assert "joint limits" not in str(error.value)
+    assert fake.sent_after(0.0)[-1] == STOP
 
 
 # --- 5. the speed floor --------------------------------------------------------------------
@@ -340,16 +249,12 @@ def test_a_speed_fraction_below_the_floor_is_refused(fraction):
             RobotLinkConfig(speed_fraction=fraction)
 
 
-def test_the_driver_refuses_a_speed_below_the_floor_however_its_settings_were_made(fake):
-    robot = connect(fake)
-    try:
-        # A loader that fills the record without running its checks.
-        object.__setattr__(robot.settings, "speed_fraction", 1e-38)
-        with pytest.raises(ScannerError, match="speed_fraction"):
-            robot.execute(trajectory())
-        assert fake.requests == []
-    finally:
-        robot.close()
+def test_the_driver_refuses_a_speed_below_the_floor_however_its_settings_were_made(fake, robot):
+    # A loader that fills the record without running its checks.
+    object.__setattr__(robot.settings, "speed_fraction", 1e-38)
+    with pytest.raises(ScannerError, match="speed_fraction"):
+        robot.execute(trajectory())
+    assert fake.requests == []
 
 
 # --- faults that already held: still stopped at once, nothing more streamed ------------------
@@ -364,38 +269,21 @@ def test_the_driver_refuses_a_speed_below_the_floor_however_its_settings_were_ma
     ],
     ids=["length 2^31-1", "length -1", "garbage"],
 )
-def test_a_reply_that_is_no_packet_stops_the_arm(fake, answer, match):
-    robot = connect(fake)
-
-    def broken(request, normal):
-        fake.fault()
-        return [(0.0, answer)]
-
-    fake.answer = at_request(4, broken)
-    try:
-        error, seen_s = stopped(robot, "robot link: .*" + match)
-        one_line(error)
-        assert fake.sent_after(fake.fault_at_s, closed=1) == [STOP]
-        assert seen_s - fake.fault_at_s <= STATE_TIMEOUT_S
-    finally:
-        robot.close()
+def test_a_reply_that_is_no_packet_stops_the_arm(fake, robot, answer, match):
+    broken = lambda request, normal: [(0.0, answer)]  # noqa: E731
+    stops_at_once(fake, robot, 4, broken, "robot link: .*" + match, closed=1)
 
 
-def test_a_motion_connection_closed_mid_motion_stops_with_nothing_more_sent(fake):
-    robot = connect(fake)
-
+def test_a_motion_connection_closed_mid_motion_stops_with_nothing_more_sent(fake, robot):
     def hang_up(request, normal):
         fake.fault()
         raise OSError("the fake hangs up")
 
-    fake.answer = at_request(4, hang_up)
-    try:
-        error, seen_s = stopped(robot, "robot link: motion connection .* failed")
-        one_line(error)
-        assert fake.sent_after(fake.fault_at_s) == []
-        assert seen_s - fake.fault_at_s <= STATE_TIMEOUT_S
-    finally:
-        robot.close()
+    fake.fault_at(4, hang_up)
+    with pytest.raises(RobotStoppedError, match="robot link: motion connection .* failed"):
+        robot.execute(trajectory())
+    assert time.monotonic() - fake.fault_at_s <= STATE_TIMEOUT_S
+    assert fake.sent_after(fake.fault_at_s) == []
 
 
 @pytest.mark.parametrize(
@@ -408,33 +296,19 @@ def test_a_motion_connection_closed_mid_motion_stops_with_nothing_more_sent(fake
     ],
     ids=["e-stop", "path deviation", "state garbage", "state connection closed"],
 )
-def test_a_bad_state_mid_motion_stops_the_arm_and_only_the_stop_follows(fake, fault, match):
-    robot = connect(fake)
-
+def test_a_bad_state_mid_motion_stops_the_arm_and_only_the_stop_follows(fake, robot, fault, match):
     def apply(request, normal):
         fault(fake)
-        fake.fault()
         # Answered once the next state message has gone out (STATUS: within 0.1 s).
         return [(0.12, normal)]
 
-    fake.answer = at_request(3, apply)
-    try:
-        error, seen_s = stopped(robot, match)
-        one_line(error)
-        assert fake.sent_after(fake.fault_at_s) == [STOP]
-        assert seen_s - fake.fault_at_s <= STATE_TIMEOUT_S
-    finally:
-        robot.close()
+    stops_at_once(fake, robot, 3, apply, match)
 
 
-def test_a_full_queue_is_waited_out_and_every_point_runs_once(fake):
-    robot = connect(fake)
-    try:
-        robot.execute(trajectory())
-        points = fake.points()
-        assert len(points) > 29  # the 10-deep queue refused some, which were sent again
-        assert len({p.sequence for p in points}) == len(points)
-        assert np.abs(robot.joint_positions() - trajectory().positions_rad[-1]).max() < 1e-6
-        assert STOP not in fake.sent_after(0.0)
-    finally:
-        robot.close()
+def test_a_full_queue_is_waited_out_and_every_point_runs_once(fake, robot):
+    robot.execute(trajectory())
+    points = fake.points()
+    assert len(points) > 29  # the 10-deep queue refused some, which were sent again
+    assert len({p.sequence for p in points}) == len(points)
+    assert np.abs(robot.joint_positions() - trajectory().positions_rad[-1]).max() < 1e-6
+    assert STOP not in fake.sent_after(0.0)
