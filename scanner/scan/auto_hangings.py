@@ -4,7 +4,8 @@
 Each hanging's quick model is its views' clouds (the per-view work the scan streams anyway)
 at the robot's poses with the mount corrected on the first hanging, without the fixture; each
 further hanging is aligned onto the ones before it as the final reconstruction will (the
-alignment's verification is logged here and enforced there). The coverage is that of the
+alignment's verification is logged here and stops asking for hangings; the reconstruction
+verifies again and leaves out a hanging that fails). The coverage is that of the
 final report (`seen_surface`: seen and held by the data), so the decision and the report agree
 on what "seen" means.
 """
@@ -175,8 +176,8 @@ class HangingAssessor:
             ref_colors,
         )
         if a.failures:
-            # The final reconstruction verifies again (and refuses); here the best fit still
-            # tells what was seen and how to turn the object next.
+            # The final reconstruction verifies again (and leaves the hanging out of the model);
+            # here the best fit still tells what was seen and how to turn the object next.
             log.warning(
                 "hanging %d: its quick model does not verify against the hangings before it "
                 "(%s); the final alignment decides",

@@ -86,12 +86,18 @@ class HangingRunner:
 
     def passes(self, hangings: tuple[tuple[int, ...], ...], first: int) -> RunSummary:
         """Every hanging from `first` on (a resumed scan: the one it stopped in; a pending
-        re-hang is asked for again); with `hangings: auto`, more hangings while the model is
+        re-hang is asked for again; a later hanging whose views are all captured is not, as
+        after a hanging scanned again); with `hangings: auto`, more hangings while the model is
         not complete."""
         self.hangings = [list(h) for h in hangings]
         summaries = []
         hanging = first
         while hanging < len(self.hangings):
+            if hanging > first and set(self.hangings[hanging]) <= set(
+                self.store.captured_indices()
+            ):
+                hanging += 1
+                continue
             manifest = self.store.read_manifest()
             if hanging > first or manifest.get("pending_rehang") == hanging:
                 self._rehang(hanging, manifest)
@@ -113,13 +119,18 @@ class HangingRunner:
 
     def _rehang(self, hanging: int, manifest: dict) -> None:
         request = manifest.get("hanging_requests", {}).get(str(hanging))
+        if manifest.get("rescanning") == hanging:
+            # Scanned again after it did not align: the instruction was relative to how the
+            # object hung before that hanging, which it no longer does.
+            request = None
         with self.timer("rehang"):
             self.world = self.world.rehang(
                 hanging, self.config.error_model.operator, request, self.viewer
             )
         if self.world.sim is not None:
             record_hung_pose(self.store.root / "truth.yaml", hanging, self.world.sim.truth.X_WO)
-        self.store.update_manifest(hanging=hanging, pending_rehang=None)
+        again = {"rescanning": None} if "rescanning" in manifest else {}
+        self.store.update_manifest(hanging=hanging, pending_rehang=None, **again)
         log.info("re-hung the object for hanging %d", hanging + 1)
 
     def _after_hanging(self, hanging: int) -> None:

@@ -26,6 +26,7 @@ from scanner.reconstruct.view_stream import ViewStream, processing_hidden_s
 from scanner.reports.summary import write_summary
 from scanner.scan.decision import RunSummary
 from scanner.scan.hangings import HangingRunner
+from scanner.scan.rescan import record_left_out, reopen_left_out
 from scanner.scan.session import interruptible, log_file, meshcat_if
 from scanner.scan.viewpoints import ViewPlan, generate_viewpoints
 from scanner.scan.world import ScanWorld, setup_world
@@ -65,9 +66,12 @@ def _write_truth(store: CaptureStore, sim: Simulation, hangings: int, intruders:
 
 def _open_resumed(resume: Path, requested: ScanConfig | None) -> SavedScan:
     """The interrupted scan, checked against the configuration asked for now (if any), with
-    its partial capture (if the scan was killed mid-write) removed."""
+    its partial capture (if the scan was killed mid-write) removed; a scan with a hanging left
+    out of its model, reopened to scan that hanging again (`reopen_left_out`)."""
     saved = open_scan(resume)
-    if saved.manifest.get("status") == "complete":
+    # A hanging that did not align was left out of the model: resuming scans it again.
+    left_out = bool(saved.manifest.get("left_out_hangings"))
+    if saved.manifest.get("status") == "complete" and not left_out:
         raise ScannerError(
             f"{resume}: the scan is complete; nothing was changed. To reconstruct it again "
             f"(into a new results-N/), run: scanner reconstruct {resume}"
@@ -79,7 +83,7 @@ def _open_resumed(resume: Path, requested: ScanConfig | None) -> SavedScan:
     removed = saved.store.remove_partial_captures()
     if removed:
         log.warning("removed interrupted partial captures: %s", ", ".join(removed))
-    return saved
+    return reopen_left_out(saved) if left_out else saved
 
 
 def new_scan_views(config: ScanConfig, world: ScanWorld) -> tuple[ViewPlan, list[PlannedView]]:
@@ -190,8 +194,9 @@ def run_scan(
             given with `resume`, it must equal the saved one).
         out_dir: the scan directory to create (None: `scans/OBJECT-TIMESTAMP`).
         resume: an interrupted scan to continue: its missing views are captured; a scan whose
-            captures are complete is only reconstructed; a complete scan is refused (nothing is
-            changed).
+            captures are complete is only reconstructed; a scan with a hanging left out of its
+            model scans that hanging again (its captures and results moved aside, kept); any
+            other complete scan is refused (nothing is changed).
         force: replace an existing scan directory at `out_dir`.
         progress: `progress(captured, total)` after each view.
         meshcat: show the arm, its paths and the growing cloud in Meshcat.
@@ -212,7 +217,9 @@ def run_scan(
     timer = StageTimer()
     wall0 = time.perf_counter()
     config = saved.config if saved else (config or ScanConfig())
-    hanging = saved.hanging if saved else 0
+    hanging = saved.hanging if saved else 0  # where the object hangs now
+    again = saved.manifest.get("rescanning") if saved else None
+    first = hanging if again is None else again
     with timer("setup"):
         viewer = meshcat_if(meshcat)
         X_WO = hung_pose_of(saved.root / "truth.yaml", hanging) if saved else None
@@ -231,7 +238,7 @@ def run_scan(
     run = HangingRunner(config, world, store, views, live, viewer, timer, progress, stream)
     with interruptible(run), log_file(store.root / "scan.log"):
         try:
-            summary = run.passes(hangings, hanging)
+            summary = run.passes(hangings, first)
         finally:
             # The last capture is stored: from here on the user waits for the model.
             last_capture_wall, last_capture_cpu = time.perf_counter(), cpu_seconds()
@@ -269,6 +276,7 @@ def run_scan(
         }
         # The 3D page after the model: its time is not the wait for the model.
         add_model_page(done)
+        record_left_out(store, done.report)
         store.update_manifest(status="complete")
         _write_scan_report(store, {**report(), **waited})
     return ScanResult(store.root, _read_report(store))
@@ -300,6 +308,7 @@ def _reconstruct_captured(saved: SavedScan, show_stages: bool) -> ScanResult:
                 f"{saved.root}"
             )
         run_reconstruct(saved, progress=show_stages)
+    record_left_out(store, _read_report(store))
     store.update_manifest(status="complete")
     _write_scan_report(store, {"status": "complete"})
     return ScanResult(store.root, _read_report(store))
