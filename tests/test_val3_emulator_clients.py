@@ -1,6 +1,6 @@
 """The emulator against clients that abuse it: one that sends part of a message and falls
 silent, one that never reads what it is sent, a flood of points; and the points the VAL 3 server
-takes although no driver should send them (a velocity of 1e-38, a NaN)."""
+meets although no driver should send them (a velocity of 1e-38, NaN and infinities)."""
 
 from __future__ import annotations
 
@@ -137,9 +137,14 @@ def test_a_velocity_of_1e_38_is_taken_and_holds_the_queue_as_the_server_does(emu
     assert emu.status().in_motion == 1
 
 
-def test_a_point_with_a_nan_is_refused(emu):
+@pytest.mark.parametrize(
+    "offset, value, reply_code",
+    [(44, math.nan, sm.FAILURE), (4, math.inf, sm.FAILURE), (44, math.inf, sm.SUCCESS)],
+    ids=["NaN velocity", "infinite joint", "infinite velocity: 100 %"],
+)
+def test_non_finite_values_meet_the_servers_own_checks(emu, offset, value, reply_code):
     client = connect(emu.motion_address)
     packet = bytearray(point(7, Q0 + 0.1))
-    packet[16 + 44 : 16 + 48] = struct.pack("<f", math.nan)  # the velocity
-    assert request(client, bytes(packet)) == (7, sm.FAILURE)
-    assert emu.received == []
+    packet[16 + offset : 16 + offset + 4] = struct.pack("<f", value)
+    assert request(client, bytes(packet)) == (7, reply_code)
+    assert [p.sequence for p in emu.received] == [7]

@@ -194,12 +194,14 @@ def _unpack(layout: struct.Struct, body: bytes, what: str) -> tuple:
     return layout.unpack(body)
 
 
-def decode_traj_pt(body: bytes, joints: int = 6) -> JointTrajPt:
-    """A JOINT_TRAJ_PT body; every slot of the ten joints, velocity and duration finite."""
+def decode_traj_pt(body: bytes, joints: int = 6, finite: bool = True) -> JointTrajPt:
+    """A JOINT_TRAJ_PT body; every slot of the ten joints, velocity and duration finite
+    (finite=False: any float32, as the VAL 3 server reads it, for its emulator)."""
     values = _unpack(JOINT_TRAJ_PT_BODY, body, "JOINT_TRAJ_PT")
-    _finite("joints", values[1:11])
-    _finite("velocity", values[11:12])
-    _finite("duration", values[12:13])
+    if finite:
+        _finite("joints", values[1:11])
+        _finite("velocity", values[11:12])
+        _finite("duration", values[12:13])
     return JointTrajPt(values[0], np.array(values[1 : 1 + joints], float), values[11], values[12])
 
 

@@ -226,26 +226,17 @@ class Val3Emulator:
                 body = port.read(sock, sm.JOINT_TRAJ_PT_BODY.size, self._stopping)
                 if body is None:
                     continue
-                sequence, reply_code = self._receive_point(body)
+                # decTrajPt.pgx checks no value; NaN and infinities are left to pushMotion.pgx.
+                point = sm.decode_traj_pt(body, finite=False)
+                reply_code = self._push_motion(point)
                 if comm_type == sm.SERVICE_REQUEST:
-                    reply = sm.encode_traj_pt_reply(sequence, reply_code)
+                    reply = sm.encode_traj_pt_reply(point.sequence, reply_code)
                     port.send(sock, reply, self._split)
             except ClientStalledError as e:
                 port.drop(sock, str(e))
             except (OSError, ValueError):
                 # Lost, replaced or closed under us (ValueError: select on a closed socket).
                 port.drop(sock)
-
-    def _receive_point(self, body: bytes) -> tuple[int, int]:
-        """The sequence to echo and the reply code for a JOINT_TRAJ_PT body."""
-        try:
-            point = sm.decode_traj_pt(body)
-        except sm.ProtocolError:
-            # A NaN or infinite real, which the codec refuses. pushMotion.pgx would refuse it
-            # too (isInRange() and `vel > 0` are false for NaN), or decTrajPt.pgx would fail
-            # to decode it: FAILURE either way.
-            return sm.JOINT_TRAJ_PT_BODY.unpack(body)[0], sm.FAILURE
-        return point.sequence, self._push_motion(point)
 
     def _push_motion(self, point: JointTrajPt) -> int:
         """pushMotion.pgx: the reply code for a received point."""
@@ -258,7 +249,11 @@ class Val3Emulator:
                 return sm.SUCCESS
             speed_percent = float(np.clip(point.velocity * 100.0, 0.0, 100.0))
             q, lo, hi = point.joints_rad, s.lower_limits_rad, s.upper_limits_rad
-            accept = bool(np.all((q >= lo) & (q <= hi))) and speed_percent > 0.0  # isInRange()
+            # isInRange() and `vel > 0`: a NaN or infinite joint and a NaN velocity fail them,
+            # an infinite velocity is clipped to 100 % (as limit() does) and taken. Whether the
+            # controller's fromBinary() decodes a NaN at all is not known here; if it does not,
+            # decTrajPt.pgx fails and the reply is FAILURE as well.
+            accept = bool(np.all((q >= lo) & (q <= hi))) and speed_percent > 0.0
             # The VAL 3 code has no e-stop check here; refusing while e-stopped is our choice.
             if accept and not self._e_stopped and len(self._queue) < s.queue_depth:
                 self._queue.append(MoveJ(q, speed_percent))
