@@ -44,10 +44,6 @@ class MotionLink:
         self._where = where
         self._sock: socket.socket | None = None
 
-    @property
-    def is_open(self) -> bool:
-        return self._sock is not None
-
     def open(self) -> None:
         if self._sock is None:
             self._sock = self._connect()
