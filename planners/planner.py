@@ -122,6 +122,8 @@ class PlannerConfig:
             )
         if not (0 <= self.limit_tolerance < 0.01):
             raise ScannerError("planner.limit_tolerance: must be in [0, 0.01)")
+        if self.cache_dir is not None and not self.cache_dir.strip():
+            raise ScannerError("planner.cache_dir: expected a folder, or none, got ''")
 
     def roadmap_parameters(self) -> dict:
         """The fields the roadmap depends on (the cache key), not the query-time ones."""

@@ -187,7 +187,11 @@ def _fake_folder(tmp_path, pose_text):
         ("1 2 3 4 5 6\n", ["--pose-convention", "robotco"], "unknown pose convention 'robotco'"),
         ("1 2 3 4 5 6\n", ["--pose-layout", "xyz_euler", "--euler", "abc"], "unknown Euler"),
         ("1 2 3 4 5 6\n", ["--pose-layout", "xyz_euler", "--length-unit", "inch"], "length unit"),
-        ("1 2 3 4 5 6\n", ["--pose-layout", "xyz_euler", "--board", "dots"], "board kind 'dots'"),
+        (
+            "1 2 3 4 5 6\n",
+            ["--pose-layout", "xyz_euler", "--board", "dots"],
+            "'dots' is not one of",
+        ),
     ],
 )
 def test_bad_pose_input_is_one_line_exit_2(tmp_path, pose_text, flags, needle):

@@ -96,7 +96,8 @@ SCAN, CALIBRATE = ScanConfig(), CalibrateConfig()
 )
 def test_help_defaults_are_the_configurations(command, flag, expected):
     text = _help(_commands()[command], flag)
-    assert re.search(rf"\bdefault {re.escape(str(expected))}[,;)]", text), text
+    # A length's default says its unit.
+    assert re.search(rf"\bdefault {re.escape(str(expected))}( m)?[,;)]", text), text
 
 
 def test_help_defaults_follow_the_record(monkeypatch):
@@ -186,11 +187,12 @@ def test_unknown_key_lists_the_valid_ones_through_the_cli(tmp_path, capsys):
         (["scan", "--print-config", "--hangings", "9"], "--hangings", "in [1, 6], got 9"),
         (["scan", "--print-config", "--max-extra-views", "-1"], "--max-extra-views", "got -1"),
         (["scan", "--print-config", "--seed", "-1"], "--seed", "got -1"),
-        (["scan", "--print-config", "--size", "9"], "--size", "(0, 1], got 9.0"),
-        (["scan", "--print-config", "--radius", "9"], "--radius", "<= 3, got 9.0"),
+        # A bare number is metres; where that reading is implausible both readings are given.
+        (["scan", "--print-config", "--size", "9"], "--size", "9 reads as 9 m (9000 mm)"),
+        (["scan", "--print-config", "--radius", "9"], "--radius", "write 9mm (0.009 m)"),
         (["calibrate", "--stations", "1"], "--stations", "at least 3 stations, got 1"),
         (["calibrate", "--board", "foo"], "--board", "'foo' is not one of"),
-        (["calibrate", "--board-size", "1x1"], "--board-size", "1x1 is too small"),
+        (["calibrate", "--board-size", "1x1"], "--board-size", "expected 2 to 200 along a side"),
         (["calibrate", "--board-spacing", "0.9"], "--board-spacing", "got 0.9"),
         (["calibrate", "--eye-to-hand", "--held-out", "-1"], "--held-out", "got -1"),
         (["calibrate", "--eye-to-hand", "--grid-spacing", "5"], "--grid-spacing", "got 5.0"),
@@ -230,7 +232,7 @@ def test_usage_error_is_one_line_naming_the_flag():
     assert r.returncode == 2
     assert r.stdout == ""
     assert r.stderr.splitlines() == [
-        "scanner scan: error: argument --size: expected a positive finite number, got -1 "
+        "scanner scan: error: argument --size: expected a positive length, got '-1' "
         "(see scanner scan --help)"
     ]
 

@@ -157,6 +157,7 @@ CASES = [
     (["check-cell"], "--calibration", _paths(PATHS)),
     (["check-cell"], "--driver", _names([])),
     (["check-cell"], "--board=1", None),
+    (["check-cell"], "--hangings", _ints(1, 6)),
     # Hosts that cannot be listened on (an empty or "0" host would listen on every interface).
     (["emulate-controller"], "--host", st.sampled_from(["no such host", "256.1.1.1", "a b"])),
     (["emulate-controller"], "--motion-port", _ints(0, 65535)),

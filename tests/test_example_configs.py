@@ -3,6 +3,7 @@ comments promise; the default one is exactly the built-in defaults."""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import pytest
@@ -10,6 +11,17 @@ import pytest
 from scanner.configs.scan import ScanConfig, load_scan_config, scan_config_to_dict
 
 CONFIGS = Path(__file__).resolve().parents[1] / "scanner" / "configs"
+
+
+def write_nominal_calibration(path: Path) -> Path:
+    """A calibration file of the nominal camera and mount (what an uncalibrated scan assumes)."""
+    from reconstruction.calibration.file import Calibration, save_calibration
+    from robots.models.camera_tool import nominal_X_FC
+
+    stereo = ScanConfig().camera.stereo_camera()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    calibration = Calibration(nominal_X_FC(stereo.baseline_m), stereo, stereo.left, "test")
+    return save_calibration(calibration, path)
 
 
 def test_every_example_is_tested():
@@ -43,7 +55,9 @@ def test_the_default_example_is_the_built_in_default():
                 "hardware.camera.kind": "opencv",
                 "hardware.camera.left": 0,
                 "hardware.camera.right": 1,
-                "calibration_file": "calibration/calibration.yaml",
+                # Read from the configuration's folder (a copy of the example, with a
+                # calibration file where the example names one).
+                "calibration_file": "{folder}/calibration/calibration.yaml",
                 "views.radius_m": 0.5,
                 "hangings": 1,
             },
@@ -60,12 +74,16 @@ def test_the_default_example_is_the_built_in_default():
         ("monitor.yaml", {"monitor.enabled": True, "monitor.intruder_start_s": (4.0, 20.0)}),
     ],
 )
-def test_each_example_sets_what_it_says_and_keeps_the_rest(name, expected):
-    config = load_scan_config(CONFIGS / name)
+def test_each_example_sets_what_it_says_and_keeps_the_rest(name, expected, tmp_path):
+    shutil.copy(CONFIGS / name, tmp_path / name)
+    write_nominal_calibration(tmp_path / "calibration" / "calibration.yaml")
+    config = load_scan_config(tmp_path / name)
     for path, value in expected.items():
         got = config
         for part in path.split("."):
             got = getattr(got, part)
+        if isinstance(value, str):
+            value = value.format(folder=tmp_path)
         assert got == value, path
     # Everything the example does not name keeps its default.
     default = ScanConfig()

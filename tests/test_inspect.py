@@ -149,3 +149,34 @@ def test_bad_inputs_name_what_is_wrong(files, tmp_path, capsys):
         main(["inspect", str(files["model"]), "--reference", "x.ply", "--min-within", "1.5"])
     assert e.value.code == 2
     assert "--min-within" in capsys.readouterr().err
+
+
+def test_a_tolerance_typed_in_millimetres_without_its_unit_is_refused(files, capsys, tmp_path):
+    # 0.5 read in metres is 500 mm, more than the ~0.15 m part: it would pass anything.
+    args = ["inspect", str(files["model"]), "--reference", str(files["reference_m"])]
+    out = tmp_path / "refused"
+    assert main([*args, "--tolerance", "0.5", "--out", str(out)]) == 2
+    (error,) = capsys.readouterr().err.splitlines()
+    assert "--tolerance: 0.5 reads as 0.5 m (500 mm)" in error and "the model's size" in error
+    assert "write 0.5mm" in error
+    assert not out.exists()
+    assert main([*args, "--scale", "2", "--out", str(out)]) == 2
+    assert "--scale: 2 reads as 2 m (2000 mm)" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("typed", ["0.5mm", "0.0005m", "500um", "0.0005"])
+def test_lengths_take_a_unit_and_a_bare_number_is_metres(files, capsys, tmp_path, typed):
+    args = ["inspect", str(files["model"]), "--reference", str(files["reference_m"])]
+    out = tmp_path / "inspection"
+    assert main([*args, "--tolerance", typed, "--align", "none", "--out", str(out)]) == 0
+    report = json.loads((out / "inspection.json").read_text())
+    assert report["deviation"]["tolerance_mm"] == pytest.approx(0.5, rel=1e-12)
+
+
+@pytest.mark.parametrize("typed", ["0.5 inch", "mm", "-1mm", "0.0000001", "0.5nm"])
+def test_a_bad_length_is_a_usage_error_naming_the_option(files, capsys, typed):
+    with pytest.raises(SystemExit) as e:
+        main(["inspect", str(files["model"]), "--reference", "x.ply", "--tolerance", typed])
+    assert e.value.code == 2
+    (error,) = capsys.readouterr().err.splitlines()
+    assert "argument --tolerance:" in error

@@ -15,6 +15,7 @@ from planners.ik import rig_centre_offset
 from robots.models.workcell import DEFAULT_CELL_BOXES
 from scanner.commands.main import main
 from scanner.configs.scan import scan_config_from_dict
+from scanner.plan_only.picture import UNREACHABLE_COLOUR, plan_figure
 from scanner.plan_only.plan import PICTURE_FILE, PLAN_FILE, plan_scan, run_plan_only
 from scanner.scan.run import run_scan
 from scanner.scan.world import setup_world
@@ -113,10 +114,13 @@ def test_out_of_reach_views_are_listed_with_their_reason(tmp_path, monkeypatch, 
     monkeypatch.chdir(tmp_path)
     # 1.2 m from the object centre is beyond the arm (the scan itself refuses to start).
     code = main(["scan", "--plan-only", "--config", str(config_file), "--radius", "1.2"])
-    assert code == 0
-    lines = capsys.readouterr().out.splitlines()
+    assert code == 2  # fewer views reachable than asked: the plan is written, then refused
+    printed = capsys.readouterr()
+    lines = printed.out.splitlines()
     assert len(lines) == 6
     assert all("unreachable" in line and "no_ik_solution" in line for line in lines[:5])
+    (error,) = printed.err.splitlines()
+    assert "5 of 5 views are unreachable: view 1, 2, 3, 4, 5" in error
     (out,) = (tmp_path / "scans").iterdir()
     assert out.name.startswith("vase-") and out.name.endswith("-plan")
     assert lines[5] == (
@@ -142,6 +146,28 @@ def _nominal_X_FC() -> np.ndarray:
     return camera_tool.nominal_X_FC(_config().camera.stereo_camera().baseline_m)
 
 
+def test_a_plan_short_of_views_exits_2_naming_them_as_plan_png_numbers_them(tmp_path, capsys):
+    # Views on the whole sphere, none replaced by a neighbour: one of five is reachable.
+    sphere = {"distribution": "sphere", "replace_within_rad": 1e-3}
+    data = copy.deepcopy(TINY)
+    data["views"] = {**data["views"], **sphere}
+    config_file = tmp_path / "sphere.yaml"
+    config_file.write_text(yaml.safe_dump(data))
+    out = tmp_path / "plan"
+    assert main(["scan", "--plan-only", "--config", str(config_file), "--out", str(out)]) == 2
+    (error,) = capsys.readouterr().err.splitlines()
+    saved = json.loads((out / PLAN_FILE).read_text())
+    missing = [v["number"] for v in saved["viewpoints"] if not v["reachable"]]
+    assert sorted(missing) == [2, 3, 4, 5]  # the reached view first, then the dropped ones
+    assert f"4 of 5 views are unreachable: view {', '.join(map(str, missing))} " in error
+    assert str(out / PICTURE_FILE) in error
+    plan = plan_scan(_config(views=sphere), setup_world(_config(views=sphere)))
+    figure = plan_figure(plan, _config().cell)
+    for axes in figure.axes:
+        labels = {t.get_text(): t.get_color() for t in axes.texts if t.get_text().isdigit()}
+        assert labels == {"1": "black", **{str(n): UNREACHABLE_COLOUR for n in missing}}
+
+
 def test_a_view_blocked_by_an_obstacle_is_in_collision():
     # Views on the whole sphere, none replaced by a neighbour: only one of five is reachable.
     sphere = {"distribution": "sphere", "replace_within_rad": 1e-3}
@@ -164,13 +190,16 @@ def test_an_existing_plan_is_replaced_only_with_force(tmp_path, capsys):
     config_file.write_text(yaml.safe_dump(TINY))
     out = tmp_path / "plan"
     args = ["scan", "--plan-only", "--config", str(config_file), "--radius", "1.2", "--out"]
-    assert main([*args, str(out)]) == 0
+    # Out of reach: each plan is written and the command exits 2 for the unreachable views.
+    assert main([*args, str(out)]) == 2
     stamp = (out / PLAN_FILE).stat().st_mtime_ns
     capsys.readouterr()
     assert main([*args, str(out)]) == 2
     assert "holds a plan already" in capsys.readouterr().err
     assert (out / PLAN_FILE).stat().st_mtime_ns == stamp
-    assert main([*args, str(out), "--force"]) == 0
+    assert main([*args, str(out), "--force"]) == 2
+    assert "views are unreachable" in capsys.readouterr().err
+    assert (out / PLAN_FILE).stat().st_mtime_ns != stamp
     other = tmp_path / "other"
     other.mkdir()
     (other / "notes.txt").write_text("mine")

@@ -54,26 +54,34 @@ class BoardSpec:
 
     def __post_init__(self) -> None:
         if self.kind not in BOARD_KINDS:
-            raise ScannerError(f"board kind '{self.kind}' is not one of {', '.join(BOARD_KINDS)}")
+            raise ScannerError(f"board.kind: '{self.kind}' is not one of {', '.join(BOARD_KINDS)}")
         least = 3 if self.kind == "circles_asymmetric" else 2
-        if self.cols < least or self.rows < least:
-            raise ScannerError(
-                f"board: {self.cols}x{self.rows} is too small; need at least {least}x{least}"
-            )
-        if self.cols > 200 or self.rows > 200:
-            raise ScannerError(f"board: {self.cols}x{self.rows}: at most 200 along a side")
+        for name in ("cols", "rows"):
+            count = getattr(self, name)
+            if not least <= count <= 200:
+                raise ScannerError(
+                    f"board.{name}: expected {least} to 200 along a side of a {self.kind} "
+                    f"board, got {count}"
+                )
         if not (math.isfinite(self.spacing_m) and 0 < self.spacing_m <= 0.5):
             raise ScannerError(
-                f"board spacing must be a length in metres in (0, 0.5], got {self.spacing_m}"
+                f"board.spacing_m: expected a length in metres in (0, 0.5], got {self.spacing_m}"
+            )
+        if not (math.isfinite(self.circle_diameter_m) and self.circle_diameter_m >= 0):
+            raise ScannerError(
+                "board.circle_diameter_m: expected a length in metres (0: not given), got "
+                f"{self.circle_diameter_m}"
             )
         if self.kind == "charuco":
             if not 0 < self.marker_m < self.spacing_m:
                 raise ScannerError(
-                    f"charuco marker_m must be between 0 and the square size {self.spacing_m} m, "
-                    f"got {self.marker_m}"
+                    f"board.marker_m: expected between 0 and the square size {self.spacing_m} m "
+                    f"(charuco), got {self.marker_m}"
                 )
             if not hasattr(cv2.aruco, self.dictionary):
-                raise ScannerError(f"unknown ArUco dictionary '{self.dictionary}'")
+                raise ScannerError(
+                    f"board.dictionary: unknown ArUco dictionary '{self.dictionary}'"
+                )
 
     @property
     def point_count(self) -> int:

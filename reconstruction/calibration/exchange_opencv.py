@@ -16,6 +16,7 @@ from reconstruction.calibration.camera_files import (
     stereo_from,
 )
 from reconstruction.common.errors import ScannerError
+from reconstruction.common.lengths import parse_length
 from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.stereo.rectification import compute_rectification
 
@@ -26,21 +27,18 @@ LENGTH_UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
 
 def parse_length_unit(text: str) -> float:
-    """Metres per length unit: 'm', 'cm', 'mm', or a positive number of metres (the board
-    square size, for files in OpenCV's stereo_calib units)."""
+    """Metres per length unit: 'm', 'cm', 'mm', or a length (the board square size, for files
+    in OpenCV's stereo_calib units): a number of metres, or with a unit (`25mm`)."""
     name = str(text).strip()
     if name in LENGTH_UNITS_M:
         return LENGTH_UNITS_M[name]
     try:
-        value = float(name)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
+        return parse_length(name)
+    except ScannerError as e:
         raise ScannerError(
-            f"length unit '{text}': expected m, cm, mm or a positive number of metres (the "
-            "board square size for files in board squares)"
-        )
-    return value
+            f"length unit '{text}': expected m, cm, mm or a length (the board square size for "
+            f"files in board squares: a number of metres, or with a unit such as 25mm): {e}"
+        ) from None
 
 
 def _opencv_text(entries: list[tuple[str, object]], comments: list[str]) -> str:

@@ -239,8 +239,18 @@ def calibration_from_dict(d: dict, where: str = "calibration") -> Calibration:
 
 
 def load_calibration(path: Path) -> Calibration:
-    """The calibration in `path` (what `--calibration FILE` reads), validated."""
-    return calibration_from_dict(read_yaml(path, "calibration"), str(path))
+    """The calibration in `path` (what `--calibration FILE` reads), validated, and held to the
+    limits a computed calibration is refused at (RefusedResultError, exit 3, beyond them)."""
+    from reconstruction.calibration.plausibility import require_plausible
+
+    calibration = calibration_from_dict(read_yaml(path, "calibration"), str(path))
+    require_plausible(
+        calibration,
+        str(path),
+        "a length unit read wrongly (metres for millimetres or board squares), or a "
+        "hand-edited file",
+    )
+    return calibration
 
 
 def calibrated_model(model, calibration: Calibration, where: str):

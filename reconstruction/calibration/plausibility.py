@@ -8,12 +8,18 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from reconstruction.calibration.eye_in_hand import HandEyeCalibration, board_scatter
+from reconstruction.calibration.file import Calibration
 from reconstruction.calibration.hand_eye import solve_every_method
 from reconstruction.calibration.settings import CalibrationSettings
+from reconstruction.common.errors import RefusedResultError
+from reconstruction.stereo.camera_model import StereoCamera
 
 
-def implausible_figures(hand_eye: HandEyeCalibration, settings: CalibrationSettings) -> list[str]:
-    """The figures beyond the settings' limits, each with its limit (empty: plausible)."""
+def implausible_figures(
+    hand_eye: HandEyeCalibration, settings: CalibrationSettings, stereo: StereoCamera | None = None
+) -> list[str]:
+    """The figures of a computed calibration beyond the settings' limits, each with its limit
+    (empty: plausible)."""
     problems = []
     if hand_eye.rms_px > settings.max_reprojection_rms_px:
         problems.append(
@@ -25,13 +31,53 @@ def implausible_figures(hand_eye: HandEyeCalibration, settings: CalibrationSetti
             f"board-in-base scatter {1e3 * hand_eye.board_scatter_max_m:.1f} mm (limit "
             f"{1e3 * settings.max_board_scatter_m:g} mm)"
         )
-    offset = float(np.linalg.norm(hand_eye.X_FC[:3, 3]))
+    return problems + implausible_rig(hand_eye.X_FC, stereo, settings)
+
+
+def implausible_rig(
+    X_FC: np.ndarray, stereo: StereoCamera | None, settings: CalibrationSettings
+) -> list[str]:
+    """The camera's distance from the flange and the stereo baseline beyond the settings'
+    limits (what a calibration file holds whether or not anything was measured)."""
+    problems = []
+    if stereo is not None and stereo.baseline_m > settings.max_baseline_m:
+        problems.append(
+            f"stereo baseline {1e3 * stereo.baseline_m:.0f} mm (limit "
+            f"{1e3 * settings.max_baseline_m:g} mm)"
+        )
+    offset = float(np.linalg.norm(np.asarray(X_FC)[:3, 3]))
     if offset > settings.max_hand_eye_translation_m:
         problems.append(
             f"camera {1e3 * offset:.0f} mm from the flange (limit "
             f"{1e3 * settings.max_hand_eye_translation_m:g} mm)"
         )
     return problems
+
+
+def implausible_calibration(
+    calibration: Calibration, settings: CalibrationSettings | None = None
+) -> list[str]:
+    """What a calibration file holds beyond the limits a computed calibration is refused at:
+    its rig, and its reprojection RMS when it was measured."""
+    settings = settings or CalibrationSettings()
+    problems = []
+    rms = calibration.quality.get("reprojection_rms_px")
+    if isinstance(rms, int | float) and rms > settings.max_reprojection_rms_px:
+        problems.append(
+            f"reprojection RMS {rms:.1f} px (limit {settings.max_reprojection_rms_px:g} px)"
+        )
+    return problems + implausible_rig(calibration.X_FC, calibration.stereo, settings)
+
+
+def require_plausible(calibration: Calibration, where: str, causes: str) -> None:
+    """RefusedResultError (exit 3) naming `where` when `calibration` is implausible; `causes`
+    says what likely went wrong."""
+    problems = implausible_calibration(calibration)
+    if problems:
+        raise RefusedResultError(
+            f"{where}: calibration refused as physically implausible: {'; '.join(problems)}. "
+            f"Likely causes: {causes}"
+        )
 
 
 def board_scatter_of(X_WF: Sequence[np.ndarray], X_CB: Sequence[np.ndarray]) -> float | None:

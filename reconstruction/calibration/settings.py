@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from reconstruction.common.checks import require_count, require_positive
+from reconstruction.common.checks import require_count, require_non_negative, require_positive
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.robust_loss import check_loss
 
@@ -42,10 +42,11 @@ class CalibrationSettings:
     offset_min_independence: such a parameter is estimated only when the image change it makes
         is at least this independent (sine of the angle) of what X_FC, the board pose and the
         other parameters can do.
-    max_reprojection_rms_px, max_board_scatter_m, max_hand_eye_translation_m: a calibration
-        beyond any of these is refused as physically implausible (a wrong pose convention
-        gives hundreds of px, tens of cm of board scatter and metres of X_FC; real sets of
-        usable quality stay within a few px and mm, a wrist camera within a tool's size).
+    max_reprojection_rms_px, max_board_scatter_m, max_hand_eye_translation_m, max_baseline_m:
+        a calibration beyond any of these is refused as physically implausible (a wrong pose
+        convention gives hundreds of px, tens of cm of board scatter and metres of X_FC; a
+        wrong length unit scales the baseline and X_FC alike; real sets of usable quality stay
+        within a few px and mm, a wrist camera and its stereo pair within a tool's size).
     """
 
     min_poses: int = 5
@@ -71,6 +72,7 @@ class CalibrationSettings:
     max_reprojection_rms_px: float = 10.0
     max_board_scatter_m: float = 0.02
     max_hand_eye_translation_m: float = 0.5
+    max_baseline_m: float = 0.5
 
     def __post_init__(self) -> None:
         if self.min_poses < 3:
@@ -93,8 +95,14 @@ class CalibrationSettings:
                 "max_reprojection_rms_px",
                 "max_board_scatter_m",
                 "max_hand_eye_translation_m",
+                "max_baseline_m",
                 "offset_min_independence",
                 "min_robot_translation_sigma_m",
                 "min_robot_rotation_sigma_rad",
+                "min_motion_rotation_rad",
+                "min_axis_spread_rad",
             ),
+        )
+        require_non_negative(
+            "solver", self, ("robot_translation_sigma_m", "robot_rotation_sigma_rad")
         )

@@ -103,7 +103,7 @@ class HandEyeConfig:
         )
         require_count("handeye", self, ("max_rounds",))
         require_count("handeye", self, ("refine_max_points_per_view",), minimum=10)
-        require_count("handeye", self, ("axxb_max_rejection_rounds",), minimum=0)
+        require_count("handeye", self, ("axxb_max_rejection_rounds", "seed"), minimum=0)
 
     @property
     def fine_fit(self) -> CloudFit:

@@ -77,12 +77,12 @@ class IcpConfig:
     # Normals at each level from this many voxels around.
     normal_radius_factor: float = positive(3.0)
     normal_max_neighbors: int = integer(30)
-    relative_fitness: float = 1e-7
-    relative_rmse: float = 1e-7
+    relative_fitness: float = positive(1e-7)
+    relative_rmse: float = positive(1e-7)
     # Converged: one more finest-level iteration moves the overlap's centroid less than 10 um
     # and turns it less than 0.006 deg, well below what pairwise ICP resolves (~0.02 deg).
-    converged_step_m: float = 1e-5
-    converged_step_rad: float = 1e-4
+    converged_step_m: float = positive(1e-5)
+    converged_step_rad: float = positive(1e-4)
     # Pair selection (`partners_among_earlier`): each view against this many of the views
     # before it, nearest by viewing angle. Measured on the same 24-view captures against the
     # earlier rule (6 nearest in both directions, 94 pairs on the vase), observed Chamfer:

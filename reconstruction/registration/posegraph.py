@@ -27,7 +27,14 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from reconstruction.common.checks import check_fields, integer, positive, require_choice
+from reconstruction.common.checks import (
+    check_fields,
+    fraction,
+    integer,
+    non_negative,
+    positive,
+    require_choice,
+)
 from reconstruction.common.robust_loss import check_loss, irls_weights
 from reconstruction.common.transforms import (
     invert,
@@ -53,7 +60,9 @@ class PoseGraphConfig:
     robust_loss: str = "cauchy"
     robust_scale: float = positive(3.0)  # in sigmas: edges beyond ~3 sigma are down-weighted
     max_iterations: int = integer(20)
-    tolerance: float = 1e-9  # largest step component (rad or m) at which Gauss-Newton stops
+    tolerance: float = positive(
+        1e-9
+    )  # largest step component (rad or m) at which Gauss-Newton stops
     # After optimisation an edge whose residual (at its overlap's centroid) exceeds these is
     # pruned (the worst first) and the graph solved again, at most `max_prune_rounds` times.
     prune_translation_m: float = positive(0.001)
@@ -61,8 +70,8 @@ class PoseGraphConfig:
     max_prune_rounds: int = integer(10, minimum=0)
     # Open3D method only (see open3d.pipelines.registration.GlobalOptimizationOption).
     open3d_max_correspondence_m: float = positive(0.002)
-    open3d_edge_prune_threshold: float = 0.25
-    open3d_preference_loop_closure: float = 1.0
+    open3d_edge_prune_threshold: float = fraction(0.25)
+    open3d_preference_loop_closure: float = non_negative(1.0)
 
     def __post_init__(self) -> None:
         require_choice("pose_graph", "method", self.method, POSE_GRAPH_METHODS)

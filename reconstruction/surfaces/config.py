@@ -93,10 +93,10 @@ class SurfaceConfig:
             )
         check_fields("surfaces", self)
         require_choice("surfaces", "rbf_kernel", self.rbf_kernel, RBF_KERNELS)
-        if not 0 <= self.poisson_density_quantile < 1 or not 0 <= self.min_component_fraction < 1:
-            raise ScannerError(
-                "surfaces: poisson_density_quantile and min_component_fraction in [0, 1)"
-            )
+        for name in ("poisson_density_quantile", "min_component_fraction"):
+            value = getattr(self, name)
+            if not 0 <= value < 1:
+                raise ScannerError(f"surfaces.{name}: expected a number in [0, 1), got {value!r}")
         if not 4 <= self.poisson_depth <= 12:
             raise ScannerError("surfaces.poisson_depth: between 4 and 12")
         if not self.ball_pivoting_radii_m or min(self.ball_pivoting_radii_m) <= 0:

@@ -121,20 +121,13 @@ def load_hardware(spec: str, config: object) -> Hardware:
     cell, camera, ...) and connects to the hardware; every failure to find or call it is a user
     error naming `spec`.
     """
-    import importlib
-
     from reconstruction.common.errors import ScannerError
+    from robots.drivers.driver_module import driver_factory
 
-    module_name, _, attribute = spec.partition(":")
-    if not module_name or not attribute:
-        raise ScannerError(f"driver: expected 'package.module:factory', got '{spec}'")
     try:
-        module = importlib.import_module(module_name)
-    except ImportError as e:
-        raise ScannerError(f"driver: cannot import '{module_name}' ({e})") from None
-    factory = getattr(module, attribute, None)
-    if not callable(factory):
-        raise ScannerError(f"driver: '{module_name}' has no callable '{attribute}'")
+        factory = driver_factory(spec)
+    except ScannerError as e:
+        raise ScannerError(f"driver: {e}") from None
     hardware = factory(config)
     if not (
         isinstance(hardware, Hardware)

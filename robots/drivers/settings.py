@@ -108,6 +108,15 @@ class CameraLinkConfig:
                     "hardware.camera.right: expected the right camera's source (or "
                     "side_by_side: true), got none"
                 )
+        for side in ("left", "right"):
+            source = getattr(self, side)
+            if isinstance(source, int) and source < 0 or isinstance(source, str) and not source:
+                raise ScannerError(
+                    f"hardware.camera.{side}: expected a device index >= 0, a device path, a "
+                    f"URL or a recording, got {source!r}"
+                )
+        if self.serial is not None and not self.serial.strip():
+            raise ScannerError("hardware.camera.serial: expected a serial number, or none, got ''")
         check_fields("hardware.camera", self)
 
 

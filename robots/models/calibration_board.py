@@ -22,6 +22,7 @@ from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 from pydrake.multibody.tree import SpatialInertia
 
 from reconstruction.calibration.boards import BoardImage, BoardSpec, board_image
+from reconstruction.common.checks import check_fields, positive
 from reconstruction.common.errors import ScannerError
 from robots.models.workcell import textured_instance
 
@@ -46,15 +47,19 @@ class BoardPlacement:
     center_m: tuple[float, float, float] = (0.50, 0.0, 0.12)
     facing_azimuth_rad: float = math.pi
     facing_elevation_rad: float = math.radians(55.0)
-    post_size_m: float = 0.03
+    post_size_m: float = positive(0.03)
 
     def __post_init__(self) -> None:
         if len(self.center_m) != 3 or not all(math.isfinite(v) for v in self.center_m):
             raise ScannerError(
-                f"board center_m: expected three finite numbers, got {self.center_m}"
+                f"placement.center_m: expected three finite numbers, got {self.center_m}"
             )
         if not -math.pi / 2 <= self.facing_elevation_rad <= math.pi / 2:
-            raise ScannerError("board facing_elevation_rad must be within [-pi/2, pi/2]")
+            raise ScannerError(
+                "placement.facing_elevation_rad: expected an angle within [-pi/2, pi/2], got "
+                f"{self.facing_elevation_rad}"
+            )
+        check_fields("placement", self)
 
     def X_WB(self, board: BoardSpec) -> np.ndarray:
         """Pose of the board frame B: -z_B (the side the camera sees) faces the given direction,

@@ -126,7 +126,7 @@ MESH_SUFFIXES = (".obj", ".ply", ".stl")
 
 
 def load_mesh_file(path: Path, size_m: float) -> ObjectMesh:
-    import open3d as o3d
+    from reconstruction.common.mesh_files import read_triangle_mesh
 
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -135,7 +135,7 @@ def load_mesh_file(path: Path, size_m: float) -> ObjectMesh:
         )
     if not path.is_file():
         raise ScannerError(f"{path}: no such mesh file")
-    mesh = o3d.io.read_triangle_mesh(str(path))
+    mesh = read_triangle_mesh(path)
     if len(mesh.triangles) == 0:
         raise ScannerError(f"{path}: unreadable or empty mesh (no triangles)")
     return _normalised(path.stem, np.asarray(mesh.vertices), np.asarray(mesh.triangles), size_m)

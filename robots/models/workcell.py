@@ -51,12 +51,25 @@ class CellBox:
     size: tuple[float, float, float]
     rgba: tuple[float, float, float, float] = (0.6, 0.6, 0.6, 1.0)
 
+    def __post_init__(self) -> None:
+        if len(self.size) != 3 or not all(math.isfinite(v) and v > 0 for v in self.size):
+            raise ScannerError(
+                f"boxes.size: expected three positive sizes in metres, got {list(self.size)}"
+            )
+        if len(self.p_WB) != 3 or not all(math.isfinite(v) for v in self.p_WB):
+            raise ScannerError(f"boxes.p_WB: expected three finite numbers, got {list(self.p_WB)}")
+
 
 DEFAULT_CELL_BOXES: tuple[CellBox, ...] = (
     CellBox("table", (0.15, 0.0, -0.025), (1.3, 1.1, 0.05), (0.45, 0.35, 0.25, 1.0)),
     CellBox("fence", (-0.75, 0.0, 0.85), (0.02, 1.8, 1.8), (0.85, 0.8, 0.1, 1.0)),
     CellBox("radiator", (0.25, -0.75, 0.35), (0.7, 0.1, 0.6), (0.9, 0.9, 0.9, 1.0)),
 )
+
+
+# The rod, the camera's depth window and the arm's reach are sized for objects of a few
+# centimetres to half a metre; beyond a metre the size is a unit typed wrongly.
+MAX_OBJECT_SIZE_M = 1.0
 
 
 @dataclass(frozen=True)
@@ -76,14 +89,22 @@ class WorkcellConfig:
         c = self.object_center_m
         if len(c) != 3 or not all(math.isfinite(v) for v in c):
             raise ScannerError(f"object_center_m: expected three finite numbers, got {c}")
-        # The rod, the camera's depth window and the arm's reach are sized for objects of
-        # a few centimetres to half a metre.
-        if not (math.isfinite(self.object_size_m) and 0 < self.object_size_m <= 1.0):
+        if not (math.isfinite(self.object_size_m) and 0 < self.object_size_m <= MAX_OBJECT_SIZE_M):
             raise ScannerError(
                 f"object_size_m: expected a size in metres in (0, 1], got {self.object_size_m}"
             )
-        if self.rod_top_z_m <= c[2]:
-            raise ScannerError("rod_top_z_m: must be above the object centre")
+        if not (math.isfinite(self.rod_radius_m) and self.rod_radius_m > 0):
+            raise ScannerError(
+                f"rod_radius_m: expected a positive radius in metres, got {self.rod_radius_m}"
+            )
+        if not math.isfinite(self.object_yaw_rad):
+            raise ScannerError(
+                f"object_yaw_rad: expected a finite angle, got {self.object_yaw_rad}"
+            )
+        if not self.rod_top_z_m > c[2]:
+            raise ScannerError(
+                f"rod_top_z_m: expected above the object centre ({c[2]} m), got {self.rod_top_z_m}"
+            )
 
     @property
     def X_WO(self) -> np.ndarray:

@@ -102,7 +102,7 @@ class MarkerConfig:
 
     def __post_init__(self) -> None:
         if not self.radius_m > 0:
-            raise ScannerError(f"marker radius_m must be positive, got {self.radius_m}")
+            raise ScannerError(f"marker.radius_m: expected a positive radius, got {self.radius_m}")
 
 
 class BlinkingMarker:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from reconstruction.common.checks import integer, positive
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import make_pose
 from reconstruction.stereo.camera_model import StereoCamera, StereoDesign
@@ -28,10 +29,10 @@ class StaticCameraConfig(StereoDesign):
     wrist rig: 0.25 m keeps the depth error of a 0.05 px disparity error near 0.3 mm at 1 m
     (Z^2 / (f b))."""
 
-    width_px: int = 640
-    height_px: int = 480
-    focal_px: float = 640.0
-    baseline_m: float = 0.25
+    width_px: int = integer(640, minimum=16)
+    height_px: int = integer(480, minimum=16)
+    focal_px: float = positive(640.0)
+    baseline_m: float = positive(0.25)
     distortion: tuple[float, float, float, float, float] = (-0.12, 0.05, 0.0, 0.0, 0.0)
     position_m: tuple[float, float, float] = (1.15, 0.35, 0.75)
     look_at_m: tuple[float, float, float] = (0.50, 0.05, 0.50)
@@ -39,7 +40,7 @@ class StaticCameraConfig(StereoDesign):
     def __post_init__(self) -> None:
         super().__post_init__()
         if np.linalg.norm(np.subtract(self.look_at_m, self.position_m)) < 0.1:
-            raise ScannerError("static camera: look_at_m must be at least 0.1 m from position_m")
+            raise ScannerError("camera.look_at_m: expected at least 0.1 m from camera.position_m")
 
     @property
     def X_WS(self) -> np.ndarray:

@@ -31,6 +31,7 @@ from reconstruction.stereo.camera_model import (
 TRUTH_SCHEMA = "scanner.truth/1"
 # numpy's generators take any non-negative integer; 32 bits are plenty and print in full.
 MAX_SEED = 2**32 - 1
+MAX_DEPTH_SCALE_ERROR = 0.5
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,8 @@ class ErrorModel:
     image_noise_std: float = non_negative(2.0)
     # RGB-D sensor: the true depth is the reported depth times (1 + this) (a depth-scale error,
     # a known failure of such devices, which calibration estimates from the board). 0 by
-    # default: a device within its factory calibration.
+    # default: a device within its factory calibration. Beyond +-50 % the device is broken, not
+    # miscalibrated (and at -100 % every depth would be zero).
     depth_scale_error: float = 0.0
     # Who re-hangs the object between hangings (robots.simulation.operator): "instructed"
     # follows the scanner's instruction with a person's error, "random" ignores it.
@@ -61,6 +63,11 @@ class ErrorModel:
                 f"error_model.operator: expected 'instructed' or 'random', got {self.operator!r}"
             )
         check_fields("error_model", self)
+        if not abs(self.depth_scale_error) <= MAX_DEPTH_SCALE_ERROR:
+            raise ScannerError(
+                f"error_model.depth_scale_error: expected a relative error within "
+                f"+-{MAX_DEPTH_SCALE_ERROR:g}, got {self.depth_scale_error!r}"
+            )
 
 
 @dataclass(frozen=True, eq=False)

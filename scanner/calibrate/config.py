@@ -12,6 +12,7 @@ from reconstruction.calibration.eye_to_hand import MarkerDetectionSettings
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.checks import check_fields, integer, positive
 from reconstruction.common.errors import ScannerError
+from reconstruction.common.yaml_files import read_yaml
 from reconstruction.depth.camera_model import DepthDesign
 from reconstruction.stereo.camera_model import StereoDesign
 from robots.drivers.settings import HardwareConfig
@@ -21,7 +22,8 @@ from robots.simulation.blinking_marker import MarkerConfig
 from robots.simulation.static_camera import StaticCameraConfig
 from robots.simulation.truth import MAX_SEED, ErrorModel
 from scanner.calibrate.stations import StationConfig
-from scanner.configs.typed_yaml import load_yaml_file
+from scanner.configs.references import check_driver, resolve_relative_paths
+from scanner.configs.typed_yaml import from_dict
 
 
 def _default_board() -> BoardSpec:
@@ -50,7 +52,7 @@ class EyeToHandConfig:
     held_out: int = integer(100, minimum=0, maximum=10_000)
     frames: int = 20
     detection: MarkerDetectionSettings = field(default_factory=MarkerDetectionSettings)
-    max_residual_m: float = 0.003
+    max_residual_m: float = positive(0.003)
     seed: int = integer(0, minimum=0, maximum=MAX_SEED)
 
     def __post_init__(self) -> None:
@@ -98,4 +100,12 @@ class CalibrateConfig:
 
 
 def load_calibrate_config(path: Path | None) -> CalibrateConfig:
-    return CalibrateConfig() if path is None else load_yaml_file(CalibrateConfig, path)
+    """The calibration configuration file `path` (None: the defaults), its relative paths read
+    from its folder and its driver imported now; errors name the file and the key."""
+    if path is None:
+        return CalibrateConfig()
+    data = resolve_relative_paths(read_yaml(path, "configuration") or {}, Path(path).parent)
+    config = from_dict(CalibrateConfig, data, str(path))
+    if config.driver:
+        check_driver(config.driver, f"{path}: driver")
+    return config

@@ -365,7 +365,7 @@ def calibrate_directory(
         # intrinsics, 0.26 mm and 0.012 % with the device's own).
         intrinsics = device.color
     solution = solve(board, observations, size, settings, intrinsics, source)
-    problems = implausible_figures(solution.hand_eye, settings)
+    problems = implausible_figures(solution.hand_eye, settings, solution.calibration.stereo)
     if problems:
         hint = "" if is_store else _convention_hint(root, options, solution, settings)
         raise RefusedResultError(

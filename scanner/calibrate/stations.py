@@ -43,15 +43,22 @@ class StationConfig:
     image_margin_px: float = non_negative(40.0)
     # Farthest-point metric: rotation angle (rad) + this weight x distance (m).
     position_weight_rad_per_m: float = non_negative(2.0)
-    seed: int = 0
+    seed: int = integer(0, minimum=0)
 
     def __post_init__(self) -> None:
         if self.count < 3:
             raise ScannerError(
                 f"stations.count: hand-eye needs at least 3 stations, got {self.count}"
             )
-        if not 0 < self.distance_min_m <= self.distance_max_m:
-            raise ScannerError("stations: need 0 < distance_min_m <= distance_max_m")
+        if not self.distance_min_m > 0:
+            raise ScannerError(
+                f"stations.distance_min_m: expected a positive distance, got {self.distance_min_m}"
+            )
+        if not self.distance_min_m <= self.distance_max_m:
+            raise ScannerError(
+                f"stations.distance_max_m: expected at least stations.distance_min_m "
+                f"({self.distance_min_m}), got {self.distance_max_m}"
+            )
         if not 0 <= self.max_tilt_rad < math.pi / 2:
             raise ScannerError("stations.max_tilt_rad: must be in [0, pi/2)")
         check_fields("stations", self)

@@ -95,6 +95,35 @@ def positive_float(text: str) -> float:
     return v
 
 
+class LengthOption(argparse.Action):
+    """A length option (metavar LENGTH): a number in metres, or with a unit (`0.5mm`); stores
+    metres in `dest` and the text as typed in the namespace's `typed` mapping, so that a value
+    refused later (e.g. larger than the object) is quoted as the user wrote it."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        kwargs.setdefault("metavar", "LENGTH")
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from reconstruction.common.errors import ScannerError
+        from reconstruction.common.lengths import parse_length
+
+        try:
+            metres = parse_length(values)
+        except ScannerError as e:
+            parser.error(f"argument {option_string}: {e}")
+        setattr(namespace, self.dest, metres)
+        namespace.typed = {**getattr(namespace, "typed", {}), self.dest: values}
+
+
+def typed_text(args: argparse.Namespace, dest: str) -> str:
+    """How the user typed the length option `dest` (its value in metres when not given)."""
+    return getattr(args, "typed", {}).get(dest, f"{getattr(args, dest)}")
+
+
+LENGTH_HELP = "a number in metres, or with a unit: 0.5mm, 2cm, 0.0005m"
+
+
 def hangings_arg(text: str) -> int | str:
     """--hangings: 'auto' or a count (the configuration checks its range)."""
     if text == "auto":

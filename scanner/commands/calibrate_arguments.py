@@ -6,7 +6,9 @@ from __future__ import annotations
 import argparse
 
 from scanner.commands.arguments import (
+    LENGTH_HELP,
     ConfigDefault,
+    LengthOption,
     add_command,
     add_config_file_argument,
     add_config_option,
@@ -15,7 +17,6 @@ from scanner.commands.arguments import (
     add_seed_argument,
     name_arg,
     path_arg,
-    positive_float,
 )
 
 # Where the flags take their defaults from when neither they nor --config give a value.
@@ -120,17 +121,16 @@ def _add_board_arguments(calibrate: argparse.ArgumentParser) -> None:
     add_config_option(
         board,
         "--board-spacing",
-        type=positive_float,
-        metavar="M",
-        help="square size, or circle distance along a row, in metres (default %(config_default)s)",
+        action=LengthOption,
+        help=f"square size, or circle distance along a row; {LENGTH_HELP} (default "
+        "%(config_default)s m)",
         config=ConfigDefault(CALIBRATE_CONFIG, "board.spacing_m"),
     )
     add_config_option(
         board,
         "--marker-size",
-        type=positive_float,
-        metavar="M",
-        help="ChArUco marker size in metres (default %(config_default)s; with --offline "
+        action=LengthOption,
+        help=f"ChArUco marker size; {LENGTH_HELP} (default %(config_default)s m; with --offline "
         "0.75 x --board-spacing)",
         config=ConfigDefault(CALIBRATE_CONFIG, "board.marker_m"),
     )
@@ -230,8 +230,7 @@ def _add_eye_to_hand_arguments(calibrate: argparse.ArgumentParser) -> None:
     add_config_option(
         e2h,
         "--grid-spacing",
-        type=positive_float,
-        metavar="M",
-        help="spacing of the calibration grid in metres (default %(config_default)s)",
+        action=LengthOption,
+        help=f"spacing of the calibration grid; {LENGTH_HELP} (default %(config_default)s m)",
         config=ConfigDefault(CALIBRATE_CONFIG, "eye_to_hand.grid_spacing_m"),
     )

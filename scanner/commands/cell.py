@@ -6,9 +6,12 @@ from __future__ import annotations
 import argparse
 
 from scanner.commands.arguments import (
+    ConfigDefault,
     add_command,
     add_config_file_argument,
+    add_config_option,
     add_driver_argument,
+    hangings_arg,
     name_arg,
     path_arg,
     positive_float,
@@ -54,6 +57,15 @@ def add_check_cell_parser(sub) -> None:
         "configuration's calibration_file)",
     )
     add_driver_argument(check, "check a cell")
+    add_config_option(
+        check,
+        "--hangings",
+        type=hangings_arg,
+        metavar="N|auto",
+        help="the hangings the scan will make, as scan's --hangings: with auto the driver "
+        "must be able to ask the operator for a re-hang (default %(config_default)s)",
+        config=ConfigDefault("scanner.configs.scan:ScanConfig", "hangings"),
+    )
     check.add_argument(
         "--board",
         action="store_true",
@@ -68,16 +80,18 @@ def run_check_cell_command(args: argparse.Namespace) -> int:
     from reconstruction.common.errors import ScannerError
     from scanner.calibrate.config import CalibrateConfig
     from scanner.check_cell.check import check_cell
-    from scanner.configs.scan import load_scan_config
+    from scanner.configs.scan import load_scan_config, with_overrides
 
     config = load_scan_config(args.config)
-    if args.calibration is not None:
-        from reconstruction.calibration.file import load_calibration
-
-        load_calibration(args.calibration)  # a bad file is named before anything connects
-        config = replace(config, calibration_file=str(args.calibration))
     if args.driver:
-        config = replace(config, driver=args.driver, hardware=None)
+        config = replace(config, hardware=None)  # --driver stands for the hardware: section
+    # As scan's flags: each checked (a bad file or driver named) before anything connects.
+    config = with_overrides(
+        config,
+        calibration_file=None if args.calibration is None else str(args.calibration),
+        driver=args.driver,
+        hangings=args.hangings,
+    )
     if config.hardware is None and not config.driver:
         raise ScannerError(
             "check-cell: no cell to check: give --config FILE with a hardware: section "

@@ -119,7 +119,8 @@ def add_import_parser(sub) -> None:
         type=name_arg,
         metavar="UNIT",
         help="opencv: unit of T when extrinsics.yml names none: m, cm, mm, or the board "
-        "square size in metres, as stereo_calib calibrates in squares (default m)",
+        "square size (as stereo_calib calibrates in squares): a number in metres, or with a "
+        "unit such as 25mm (default m)",
     )
 
 
@@ -220,9 +221,25 @@ def run_export(args: argparse.Namespace) -> int:
     return 0
 
 
+NOT_MEASURED = "not measured"
+
+
+def imported_quality(source: str, hand_eye: str) -> dict:
+    """The `quality:` of an imported calibration: what a calibration measures (reprojection,
+    stereo RMS, board scatter) was not measured here, and the record says so."""
+    return {
+        "reprojection_rms_px": NOT_MEASURED,
+        "stereo_rms_px": NOT_MEASURED,
+        "board_scatter_m": NOT_MEASURED,
+        "stereo": f"{NOT_MEASURED}: {source}",
+        "hand_eye": f"{NOT_MEASURED}: {hand_eye}",
+    }
+
+
 def run_import(args: argparse.Namespace) -> int:
     from reconstruction.calibration import exchange
     from reconstruction.calibration.file import Calibration, save_calibration
+    from reconstruction.calibration.plausibility import require_plausible
     from robots.models.camera_tool import nominal_X_FC
     from scanner.scan_dir.results_folder import require_new_file, storage_error
 
@@ -244,12 +261,19 @@ def run_import(args: argparse.Namespace) -> int:
     else:
         X_FC = nominal_X_FC(stereo.baseline_m)
         hand_eye = "X_FC nominal (camera tool mount)"
+    source = f"imported from {fmt} files in {args.folder}"
     calibration = Calibration(
         X_FC,
         stereo,
         stereo.left,
-        source=f"imported from {fmt} files in {args.folder}; {hand_eye}",
+        source=f"{source}; {hand_eye}",
         created=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        quality=imported_quality(source, hand_eye),
+    )
+    # Held to the limits a computed calibration is refused at, before anything is written.
+    unit = "--length-unit" if fmt == "opencv" else "the files' units"
+    require_plausible(
+        calibration, str(args.folder), f"{unit} (T read in the wrong unit), or --hand-eye"
     )
     try:
         args.out_file.parent.mkdir(parents=True, exist_ok=True)

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from scanner.commands.arguments import add_command, add_output_arguments, path_arg, positive_float
+from scanner.commands.arguments import (
+    LENGTH_HELP,
+    LengthOption,
+    add_command,
+    add_output_arguments,
+    path_arg,
+    typed_text,
+)
 
 # Exit code of an inspection that ran but found the part out of tolerance.
 EXIT_OUT_OF_TOLERANCE = 4
@@ -49,10 +56,10 @@ def add_inspect_parser(sub) -> None:
     )
     inspect.add_argument(
         "--tolerance",
-        type=positive_float,
+        action=LengthOption,
         default=defaults.tolerance_m,
-        metavar="METRES",
-        help="deviation allowed either side of the reference, in metres (default %(default)s)",
+        help=f"deviation allowed either side of the reference; {LENGTH_HELP}; less than the "
+        f"model's size (default {defaults.tolerance_m:g} m = {1e3 * defaults.tolerance_m:g} mm)",
     )
     inspect.add_argument(
         "--min-within",
@@ -64,10 +71,10 @@ def add_inspect_parser(sub) -> None:
     )
     inspect.add_argument(
         "--scale",
-        type=positive_float,
+        action=LengthOption,
         default=defaults.scale_m,
-        metavar="METRES",
-        help="end of the picture's colour scale, +- in metres (default %(default)s)",
+        help=f"end of the picture's colour scale, +-; {LENGTH_HELP} (default "
+        f"{defaults.scale_m:g} m = {1e3 * defaults.scale_m:g} mm)",
     )
     inspect.add_argument(
         "--reference-unit",
@@ -103,6 +110,7 @@ def run_inspect_command(args: argparse.Namespace) -> int:
         args.align,
         args.out,
         args.force,
+        {name: typed_text(args, name) for name in ("tolerance", "scale")},
     )
     run = run_inspect(args.model, options)
     r = run.report

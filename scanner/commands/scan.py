@@ -9,7 +9,9 @@ from pathlib import Path
 
 from reconstruction.common.errors import ScannerError
 from scanner.commands.arguments import (
+    LENGTH_HELP,
     ConfigDefault,
+    LengthOption,
     add_command,
     add_config_file_argument,
     add_config_option,
@@ -19,8 +21,8 @@ from scanner.commands.arguments import (
     hangings_arg,
     name_arg,
     path_arg,
-    positive_float,
     seconds_list,
+    typed_text,
 )
 from scanner.configs.flags import for_flag
 
@@ -49,8 +51,8 @@ def add_scan_parser(sub) -> None:
     add_config_option(
         scan,
         "--size",
-        type=positive_float,
-        help="largest extent of the object in metres (default %(config_default)s)",
+        action=LengthOption,
+        help=f"largest extent of the object; {LENGTH_HELP} (default %(config_default)s m)",
         config=ConfigDefault(SCAN_CONFIG, "cell.object_size_m"),
     )
     add_config_option(
@@ -63,8 +65,9 @@ def add_scan_parser(sub) -> None:
     add_config_option(
         scan,
         "--radius",
-        type=positive_float,
-        help="distance of the rig from the scan centre in metres (default %(config_default)s)",
+        action=LengthOption,
+        help=f"distance of the rig from the scan centre; {LENGTH_HELP} (default "
+        "%(config_default)s m)",
         config=ConfigDefault(SCAN_CONFIG, "views.radius_m"),
     )
     add_output_arguments(
@@ -192,6 +195,7 @@ def run_scan_command(args: argparse.Namespace) -> int:
     from scanner.reports.self_checks import exit_code, verdict_line
     from scanner.scan.run import run_scan
 
+    require_plausible_lengths(args)
     flags = dict(
         object_spec=args.object,
         size_m=args.size,
@@ -257,6 +261,23 @@ def run_scan_command(args: argparse.Namespace) -> int:
         return 0  # captured only (reconstruct: false): nothing was checked
     print(verdict_line(r))
     return exit_code(r)
+
+
+def require_plausible_lengths(args: argparse.Namespace) -> None:
+    """--size and --radius beyond what the cell holds or the arm reaches are a unit typed
+    wrongly (200 for 200 mm): refused with both readings."""
+    from reconstruction.common.lengths import require_below
+    from robots.models.workcell import MAX_OBJECT_SIZE_M
+    from scanner.configs.views import MAX_RADIUS_M
+
+    limits = (
+        ("size", MAX_OBJECT_SIZE_M, "more than the largest object the cell holds"),
+        ("radius", MAX_RADIUS_M, "more than any view of the arm's could be"),
+    )
+    for name, limit_m, what in limits:
+        value = getattr(args, name)
+        if value is not None and value > limit_m:
+            require_below(f"--{name}", typed_text(args, name), value, limit_m, what)
 
 
 def scan_result_lines(result) -> list[str]:

@@ -87,15 +87,50 @@ def _graphical_session() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def run_view_command(args: argparse.Namespace) -> int:
+# How long a browser command may take to hand the page over (xdg-open, open) before it counts as
+# started; one that fails (no browser behind it, no display it can use) exits within this.
+BROWSER_START_S = 3.0
+
+
+def browser_started(url: str, wait_s: float = BROWSER_START_S) -> bool:
+    """Whether a browser was started on `url`. Python's webbrowser reports a launcher such as
+    xdg-open as started the moment it runs, even when it then fails (no browser, a display
+    that does not work); such a command is run here and counts as started only when it exits
+    0, or is still running (the browser itself) after `wait_s`."""
+    import subprocess
     import webbrowser
 
-    page = model_page_of(args.result_dir).resolve()
-    opened = False
-    if not args.no_browser and _graphical_session():
+    try:
+        controller = webbrowser.get()
+    except webbrowser.Error:
+        return False
+    args = getattr(controller, "args", None)
+    if args is None:  # the platform's own call (macOS, Windows): it says whether it worked
         try:
-            opened = webbrowser.open(page.as_uri())
+            return bool(controller.open(url))
         except webbrowser.Error:
-            opened = False
-    print(f"{'opened' if opened else 'model page'}: {page}")
+            return False
+    command = [controller.name, *(a.replace("%s", url) for a in args)]
+    try:
+        launched = subprocess.Popen(
+            command,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
+    except OSError:
+        return False
+    try:
+        return launched.wait(timeout=wait_s) == 0
+    except subprocess.TimeoutExpired:
+        return True
+
+
+def run_view_command(args: argparse.Namespace) -> int:
+    page = model_page_of(args.result_dir).resolve()
+    if not args.no_browser and _graphical_session() and browser_started(page.as_uri()):
+        print(f"opened: {page}")
+    else:
+        print(f"model page: {page}")
     return 0

@@ -23,7 +23,14 @@ from robots.drivers.settings import HardwareConfig
 from robots.models.workcell import WorkcellConfig
 from robots.simulation.truth import ErrorModel
 from scanner.configs.flags import for_flag
-from scanner.configs.typed_yaml import from_dict, load_yaml_file, to_dict
+from scanner.configs.references import (
+    check_calibration_file,
+    check_driver,
+    check_object,
+    check_references,
+    resolve_relative_paths,
+)
+from scanner.configs.typed_yaml import from_dict, to_dict
 from scanner.configs.views import ViewpointConfig
 from scanner.monitor.cell_monitor import MonitorSettings
 
@@ -71,6 +78,13 @@ class ProcessingConfig:
                 f"suffixes from {', '.join(MESH_SUFFIXES)}"
             )
         check_fields("processing", self)
+        built = self.reconstruction.surfaces.methods
+        if self.primary_surface not in built:
+            raise ScannerError(
+                f"processing.primary_surface: expected one of the surfaces built "
+                f"(processing.reconstruction.surfaces.methods: {', '.join(built)}), got "
+                f"{self.primary_surface!r}"
+            )
 
 
 MAX_HANGINGS = 6
@@ -153,7 +167,15 @@ class ScanConfig:
 
 
 def load_scan_config(path: Path | None) -> ScanConfig:
-    return ScanConfig() if path is None else load_yaml_file(ScanConfig, path)
+    """The configuration file `path` (None: the defaults): its relative paths read from its
+    folder, every field validated, and what it names (object, calibration file, driver) loaded
+    now; errors name the file and the key."""
+    if path is None:
+        return ScanConfig()
+    data = resolve_relative_paths(read_yaml(path, "configuration") or {}, Path(path).parent)
+    config = scan_config_from_dict(data, str(path))
+    check_references(config, str(path))
+    return config
 
 
 def scan_config_from_dict(data: dict, where: str) -> ScanConfig:
@@ -175,7 +197,7 @@ def resume_request(saved: ScanConfig, path: Path | None, **flags) -> ScanConfig:
     keys of a --config file, the flags) applied, so that options not given are never compared."""
     config = saved
     if path is not None:
-        given = read_yaml(path, "configuration") or {}
+        given = resolve_relative_paths(read_yaml(path, "configuration") or {}, Path(path).parent)
         config = scan_config_from_dict(_deep_merge(scan_config_to_dict(saved), given), str(path))
     return with_overrides(config, **flags)
 
@@ -200,6 +222,7 @@ def with_overrides(
     an error names the flag."""
     if object_spec is not None:
         config = replace(config, object=object_spec)
+        check_object(object_spec, config.cell.object_size_m, "--object")
     if size_m is not None:
         cell = for_flag("--size", lambda: replace(config.cell, object_size_m=size_m))
         config = replace(config, cell=cell)
@@ -218,10 +241,12 @@ def with_overrides(
         model = for_flag("--operator", lambda: replace(config.error_model, operator=operator))
         config = replace(config, error_model=model)
     if calibration_file is not None:
+        check_calibration_file(calibration_file, "--calibration")
         config = replace(config, calibration_file=calibration_file)
     if sensor is not None:
         config = for_flag("--sensor", lambda: replace(config, sensor=sensor))
     if driver is not None:
+        check_driver(driver, "--driver")
         config = replace(config, driver=driver)
     if max_extra_views is not None:
         views_config = for_flag(

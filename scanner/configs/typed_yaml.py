@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
 import re
 import types
 import typing
@@ -59,8 +60,11 @@ def _convert(tp, value, where: str, keys: str):
             _convert(a, v, where, f"{keys}[{i}]") for i, (a, v) in enumerate(zip(args, value))
         )
     if tp is float:
+        # No setting is infinite or undefined: a NaN would pass every `<` check as false.
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ScannerError(f"{at}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ScannerError(f"{at}: expected a finite number, got {value!r}")
         return float(value)
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
@@ -83,9 +87,29 @@ def from_dict(cls, data, where: str):
     return _from_dict(cls, data, where, "")
 
 
-# A record's own check names the field as `section.name`, its section being the record's usual
-# key (`views.count`); the loader knows the real key path of the record in the file.
-_FIELD = re.compile(r"([A-Za-z_][\w.]*)\.(\w+): ")
+# A record's own check names its fields as `section.name`, the section being the record's usual
+# key (`views.count`, `handeye.coarse.loss`), or by the bare name at the start of the message;
+# the loader knows the real key path of the record in the file and writes that instead.
+_DOTTED = re.compile(r"(?<![\w.])(?:[A-Za-z_]\w*\.)+(\w+)(?![\w.])")
+_LEADING_NAME = re.compile(r"(\w+)(?=[: ])")
+
+
+def _with_key_paths(message: str, keys: str, names: set[str]) -> str:
+    """`message` of the record at `keys` with each of its fields named by its key path; a
+    message naming none is put under the record's own key path."""
+    found = [m for m in _DOTTED.finditer(message) if m.group(1) in names]
+    named = _DOTTED.sub(
+        lambda m: _key(keys, m.group(1)) if m.group(1) in names else m.group(0), message
+    )
+    leading = _LEADING_NAME.match(named)
+    if leading and leading.group(1) in names:
+        return _key(keys, leading.group(1)) + named[leading.end() :]
+    if found or not keys:
+        return named
+    last = keys.rsplit(".", 1)[-1]
+    if message.startswith(f"{last}:"):
+        return f"{keys}{message[len(last) :]}"
+    return f"{keys}: {message}"
 
 
 def _unknown_keys(unknown: list[str], names: set[str]) -> str:
@@ -107,15 +131,7 @@ def _from_dict(cls, data, where: str, keys: str):
     try:
         return cls(**kwargs)
     except ScannerError as e:
-        message = str(e)
-        field = _FIELD.match(message)
-        if field and field.group(2) in names:
-            message = f"{_key(keys, field.group(2))}: {message[field.end() :]}"
-        elif keys:
-            last = keys.rsplit(".", 1)[-1]
-            own = message.startswith(f"{last}:")
-            message = f"{keys}{message[len(last) :]}" if own else f"{keys}: {message}"
-        raise type(e)(f"{where}: {message}") from None
+        raise type(e)(f"{where}: {_with_key_paths(str(e), keys, names)}") from None
 
 
 def to_dict(obj) -> dict:

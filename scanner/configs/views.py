@@ -20,6 +20,8 @@ DISTRIBUTIONS = ("reachable", "sphere")
 
 # More views than this are a typo (a 24-view scan sees what the arm can reach).
 MAX_VIEWS = 1000
+# Far beyond the RX60's reach (0.67 m from the shoulder): a typo, not a plan.
+MAX_RADIUS_M = 3.0
 
 
 @dataclass(frozen=True)
@@ -27,8 +29,7 @@ class ViewpointConfig:
     """Where the views go. Angles in radians, distances in metres."""
 
     count: int = integer(24, maximum=MAX_VIEWS)
-    # Far beyond the RX60's reach (0.67 m from the shoulder): a typo, not a plan.
-    radius_m: float = positive(0.5, at_most=3.0)
+    radius_m: float = positive(0.5, at_most=MAX_RADIUS_M)
     center_m: tuple[float, float, float] | None = None  # None: the configured object centre
     distribution: str = "reachable"
     elevation_min_rad: float = math.radians(-75.0)
@@ -49,6 +50,15 @@ class ViewpointConfig:
             raise ScannerError(f"views.count: at least 1 view is needed, got {self.count}")
         check_fields("views", self)
         require_choice("views", "distribution", self.distribution, DISTRIBUTIONS)
-        if not -math.pi / 2 <= self.elevation_min_rad < self.elevation_max_rad <= math.pi / 2:
-            raise ScannerError("views.elevation_*_rad: need -pi/2 <= min < max <= pi/2")
+        for name in ("elevation_min_rad", "elevation_max_rad"):
+            value = getattr(self, name)
+            if not -math.pi / 2 <= value <= math.pi / 2:
+                raise ScannerError(
+                    f"views.{name}: expected an angle in [-pi/2, pi/2], got {value!r}"
+                )
+        if not self.elevation_min_rad < self.elevation_max_rad:
+            raise ScannerError(
+                f"views.elevation_min_rad: expected less than views.elevation_max_rad "
+                f"({self.elevation_max_rad!r}), got {self.elevation_min_rad!r}"
+            )
         require_count("views", self, ("candidates",), minimum=self.count)

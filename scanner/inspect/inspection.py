@@ -9,7 +9,7 @@ gives the report's figures). Results go to a new folder; nothing is replaced wit
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -38,6 +38,8 @@ class InspectOptions:
     align: str = "best-fit"
     out: Path | None = None
     force: bool = False
+    # How the lengths were typed on the command line ({"tolerance": "0.5"}), for messages.
+    typed: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_within <= 1.0:
@@ -66,14 +68,13 @@ class InspectRun:
 
 
 def read_mesh(path: Path, what: str) -> TriangleSurface:
-    import open3d as o3d
-
+    from reconstruction.common.mesh_files import read_triangle_mesh
     from reconstruction.evaluation.metrics import TriangleSurface
 
     path = Path(path)
     if not path.is_file():
         raise ScannerError(f"{what} {path}: no such file")
-    mesh = o3d.io.read_triangle_mesh(str(path))
+    mesh = read_triangle_mesh(path)
     if not len(mesh.triangles):
         raise ScannerError(f"{what} {path}: no triangles read (expected a .ply/.obj/.stl mesh)")
     return TriangleSurface(np.asarray(mesh.vertices, float), np.asarray(mesh.triangles))
@@ -161,6 +162,17 @@ def inspect_model(
     return placed, signed, stats, report
 
 
+def require_lengths_fit(options: InspectOptions, model: TriangleSurface) -> None:
+    """A tolerance or colour scale as large as the model itself is a unit typed wrongly (0.5
+    for 0.5 mm reads 500 mm and passes anything): refused, with both readings."""
+    from reconstruction.common.lengths import require_below
+
+    size_m = float(np.ptp(model.vertices, axis=0).max())
+    for name, length_m in (("tolerance", options.tolerance_m), ("scale", options.scale_m)):
+        text = options.typed.get(name, f"{length_m:g}")
+        require_below(f"--{name}", text, length_m, size_m, "not less than the model's size")
+
+
 def run_inspect(target: Path, options: InspectOptions) -> InspectRun:
     from reconstruction.surfaces.meshes import MESH_SUFFIXES
     from scanner.scan_dir.results_folder import (
@@ -175,6 +187,7 @@ def run_inspect(target: Path, options: InspectOptions) -> InspectRun:
         )
     source = model_source(target)
     model = read_mesh(source.mesh_path, "model")
+    require_lengths_fit(options, model)
     reference = read_mesh(options.reference, "--reference")
     if options.out is not None:
         require_replaceable(options.out, INSPECTION_MARKER, options.force, "inspection")

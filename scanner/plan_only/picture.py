@@ -25,6 +25,11 @@ PROJECTIONS = ((0, 1, "top view (x, y)"), (0, 2, "side view (x, z)"))
 
 def draw_plan(plan: ScanPlan, cell: WorkcellConfig, path: Path) -> None:
     """Write the picture of `plan` in `cell` to `path` (PNG, 1400 x 700 px)."""
+    plan_figure(plan, cell).savefig(path, format="png")
+
+
+def plan_figure(plan: ScanPlan, cell: WorkcellConfig) -> Figure:
+    """The picture of `plan` in `cell`: every viewpoint of the first hanging numbered."""
     figure = Figure(figsize=(14, 7), dpi=100)
     FigureCanvasAgg(figure)
     # The viewpoints are the same in every hanging; the first hanging's tour is drawn.
@@ -42,11 +47,11 @@ def draw_plan(plan: ScanPlan, cell: WorkcellConfig, path: Path) -> None:
         f"; the same viewpoints in each of {plan.hangings} hangings" if plan.hangings > 1 else ""
     )
     figure.suptitle(
-        f"scan plan: {plan.reachable_count} of {len(plan.viewpoints)} views reachable "
-        f"(green, numbered in tour order; red unreachable), estimated robot time "
-        f"{plan.robot_time_s:.1f} s{hangings}"
+        f"scan plan: {plan.reachable_count} of {len(plan.viewpoints)} views reachable (green; "
+        f"red unreachable), numbered in tour order, then those dropped before the tour; "
+        f"estimated robot time {plan.robot_time_s:.1f} s{hangings}"
     )
-    figure.savefig(path, format="png")
+    return figure
 
 
 def _cell(axes, cell: WorkcellConfig, plan: ScanPlan, i: int, j: int) -> None:
@@ -93,7 +98,11 @@ def _viewpoints(axes, shown, i: int, j: int) -> None:
             (p_WC[i], p_WC[j]),
             arrowprops={"arrowstyle": "->", "color": colour, "lw": 0.8},
         )
-        if v.reachable:
-            axes.annotate(
-                str(v.order), (p_WC[i], p_WC[j]), (3, 3), textcoords="offset points", fontsize=7
-            )
+        axes.annotate(
+            str(v.number),
+            (p_WC[i], p_WC[j]),
+            (3, 3),
+            textcoords="offset points",
+            fontsize=7,
+            color="black" if v.reachable else colour,
+        )

@@ -184,7 +184,8 @@ def plan_scan(config: ScanConfig, world: ScanWorld) -> ScanPlan:
         first = 1 + sum(v.order is not None for v in viewpoints)
         visited, q_now = _plan_pass(world, todo, p, q_now, first, kinematics)
         # A view dropped by the generator is missing from every hanging.
-        viewpoints += visited + [replace(v, hanging=p) for v in dropped]
+        in_hanging = visited + [replace(v, hanging=p) for v in dropped]
+        viewpoints += [replace(v, number=k) for k, v in enumerate(in_hanging, start=1)]
     return ScanPlan(
         tuple(viewpoints),
         np.asarray(config.scan_center_m, float),
@@ -214,6 +215,7 @@ def plan_to_dict(plan: ScanPlan, config: ScanConfig) -> dict:
         "viewpoints": [
             {
                 "index": v.index,
+                "number": v.number,
                 "hanging": v.hanging,
                 "order": v.order,
                 "reachable": v.reachable,
@@ -269,13 +271,10 @@ def run_plan_only(config: ScanConfig, out: Path, force: bool = False) -> PlanRun
 
 def summary_lines(run: PlanRun) -> list[str]:
     """One line per unreachable viewpoint, then the totals and the picture."""
-    lines = []
-    for v in run.plan.viewpoints:
-        if v.reachable:
-            continue
-        name = f"view {v.index}" if v.index is not None else "dropped view"
-        where = f" (hanging {v.hanging + 1})" if run.plan.hangings > 1 else ""
-        lines.append(f"unreachable: {name}{where}: {v.reason}: {v.detail}")
+    lines = [
+        f"unreachable: view {v.number}{_in_hanging(run.plan, v)}: {v.reason}: {v.detail}"
+        for v in run.plan.unreachable
+    ]
     if run.plan.extra_views_not_planned:
         lines.append(
             f"not planned: up to {run.plan.extra_views_not_planned} next-best views per hanging "
@@ -288,7 +287,22 @@ def summary_lines(run: PlanRun) -> list[str]:
     return lines
 
 
+def _in_hanging(plan: ScanPlan, v: PlannedViewpoint) -> str:
+    return f" (hanging {v.hanging + 1})" if plan.hangings > 1 else ""
+
+
 def plan_command(config: ScanConfig, out: Path, force: bool) -> int:
-    for line in summary_lines(run_plan_only(config, out, force)):
+    """Plan, write and print; a plan that reaches fewer views than asked is a user error (exit
+    2) naming the views, after its files are written (they show where the views are)."""
+    run = run_plan_only(config, out, force)
+    for line in summary_lines(run):
         print(line)
+    missing = run.plan.unreachable
+    if missing:
+        numbers = ", ".join(f"{v.number}{_in_hanging(run.plan, v)}" for v in missing)
+        raise ScannerError(
+            f"--plan-only: {len(missing)} of {len(run.plan.viewpoints)} views are unreachable: "
+            f"view {numbers} (numbered in {run.picture}; the reasons above and in "
+            f"{run.out / PLAN_FILE})"
+        )
     return 0

@@ -31,6 +31,8 @@ class PlannedViewpoint:
     q_rad: the joint configuration the move ends at (None when unreachable).
     reason: "" when reachable, else one of UNREACHABLE_REASONS; detail: for humans.
     motion_s: duration of the time-parameterised move to this view (s).
+    number: the view's number in plan.png and in the messages, 1 = first in its hanging: the
+    visited views in tour order, then those dropped before the tour.
     """
 
     index: int | None
@@ -43,6 +45,7 @@ class PlannedViewpoint:
     reason: str = ""
     detail: str = ""
     motion_s: float = 0.0
+    number: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,3 +64,7 @@ class ScanPlan:
     @property
     def reachable_count(self) -> int:
         return sum(v.reachable for v in self.viewpoints)
+
+    @property
+    def unreachable(self) -> tuple[PlannedViewpoint, ...]:
+        return tuple(v for v in self.viewpoints if not v.reachable)

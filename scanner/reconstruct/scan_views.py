@@ -138,12 +138,11 @@ def load_truth_of(scan_dir: Path):
     path = scan_dir / "truth.yaml"
     if not path.is_file():
         return None
-    import open3d as o3d
-
+    from reconstruction.common.mesh_files import read_triangle_mesh
     from robots.simulation.truth import load_truth
 
     truth, raw = load_truth(path)
-    mesh = o3d.io.read_triangle_mesh(str(scan_dir / raw.get("mesh", "truth_mesh.ply")))
+    mesh = read_triangle_mesh(scan_dir / raw.get("mesh", "truth_mesh.ply"))
     if len(mesh.triangles) == 0:
         raise ScannerError(f"{scan_dir}: truth mesh missing or empty")
     surface = TriangleSurface(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
