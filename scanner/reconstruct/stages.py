@@ -290,7 +290,8 @@ def _reconstruct(
     }
     truth = views.truths[0]
     earlier = _earlier_report(out)
-    with staged_folder(out, RECONSTRUCTION_MARKER) as staging:
+    # The scan's own report (and its summary) is read above and merged into the new one.
+    with staged_folder(out, RECONSTRUCTION_MARKER, own=("report.json", "summary.md")) as staging:
         # The model first, as a whole: what the user waits for.
         eyes = {v.index: eyes_of(v.index, v.X_WC) for v in result.views}
         report["coverage_estimate"] = result.coverage.fraction

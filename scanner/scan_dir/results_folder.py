@@ -111,16 +111,22 @@ def storage_error(path: Path, e: OSError) -> StorageError:
 
 
 @contextmanager
-def staged_folder(final: Path, marker: str) -> Iterator[Path]:
+def staged_folder(final: Path, marker: str, own: tuple[str, ...] = ()) -> Iterator[Path]:
     """A hidden sibling of `final` to write into; renamed to `final` when the block succeeds
     (an existing `final` is moved aside first and removed only after the rename), removed when
     it fails. The caller decides beforehand whether an earlier result in `final` may be
-    replaced; whatever else `final` holds is never replaced (a results folder is known by its
-    `marker` file, written last)."""
+    replaced; whatever else `final` holds is never replaced: a results folder is known by its
+    `marker` file (written last), and `own` names files the caller wrote there before and
+    carries into the new folder (a scan's own report, before its reconstruction)."""
     final = Path(final)
     parent = final.parent
-    if final.is_dir() and any(final.iterdir()) and not holds_result(final, marker):
-        raise ScannerError(f"{final}: exists and holds no result to replace; nothing written")
+    if final.is_dir() and not holds_result(final, marker):
+        foreign = [p.name for p in final.iterdir() if p.name not in own and p.name[0] != "."]
+        if foreign:
+            raise ScannerError(
+                f"{final}: holds {', '.join(sorted(foreign)[:3])} and no result to replace; "
+                "nothing written"
+            )
     try:
         parent.mkdir(parents=True, exist_ok=True)
         _remove_stale_partials(parent, final.name)
