@@ -187,7 +187,7 @@ def test_a_staged_result_never_replaces_a_folder_without_one(tmp_path):
     final.mkdir()
     (final / "notes.txt").write_text("mine")
     with (
-        pytest.raises(outputs.ScannerError, match="holds no result to replace"),
+        pytest.raises(outputs.ScannerError, match="holds notes.txt and no result to replace"),
         staged_folder(final, "reconstruction.yaml") as staging,
     ):
         (staging / "reconstruction.yaml").write_text("x")
