@@ -127,10 +127,19 @@ def test_a_driver_module_is_found_from_the_working_folder(tmp_path):
     package = tmp_path / "my_cell"
     package.mkdir()
     (package / "__init__.py").write_text("")
-    (package / "rx60.py").write_text("def connect(config):\n    raise RuntimeError('no cell')\n")
+    (package / "rx60.py").write_text("def connect(config):\n    return 'not a cell'\n")
     r = _scanner("scan", "--print-config", "--driver", "my_cell.rx60:connect", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert yaml.safe_load(r.stdout)["driver"] == "my_cell.rx60:connect"
+    # A scan imports it and calls its factory (whose answer, not a Hardware, is refused).
+    r = _scanner(
+        "scan", "--driver", "my_cell.rx60:connect", "--hangings", "1", "--out", "s", cwd=tmp_path
+    )
+    assert r.returncode == 2
+    assert r.stderr.splitlines() == [
+        "scanner: error: driver: my_cell.rx60:connect returned str; expected "
+        "robots.drivers.interfaces.Hardware holding a RobotDriver and a StereoCameraDriver"
+    ]
 
 
 def test_check_cell_takes_the_hangings_it_checks_for(tmp_path, capsys, monkeypatch):
@@ -181,6 +190,7 @@ def test_view_says_opened_only_when_a_browser_started(tmp_path, browser_exit, sa
         "DISPLAY": ":99",
         "HOME": str(tmp_path),
         "BROWSER": str(launcher),  # chosen before any browser installed here
+        **{k: v for k, v in os.environ.items() if k == "PYTHONPATH"},
     }
     r = _scanner("view", str(result), cwd=tmp_path, env=env)
     assert r.returncode == 0, r.stderr

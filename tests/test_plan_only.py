@@ -15,7 +15,6 @@ from planners.ik import rig_centre_offset
 from robots.models.workcell import DEFAULT_CELL_BOXES
 from scanner.commands.main import main
 from scanner.configs.scan import scan_config_from_dict
-from scanner.plan_only.picture import UNREACHABLE_COLOUR, plan_figure
 from scanner.plan_only.plan import PICTURE_FILE, PLAN_FILE, plan_scan, run_plan_only
 from scanner.scan.run import run_scan
 from scanner.scan.world import setup_world
@@ -161,6 +160,8 @@ def test_a_plan_short_of_views_exits_2_naming_them_as_plan_png_numbers_them(tmp_
     assert sorted(missing) == [2, 3, 4, 5]  # the reached view first, then the dropped ones
     assert f"4 of 5 views are unreachable: view {', '.join(map(str, missing))} " in error
     assert str(out / PICTURE_FILE) in error
+    from scanner.plan_only.picture import UNREACHABLE_COLOUR, plan_figure
+
     plan = plan_scan(_config(views=sphere), setup_world(_config(views=sphere)))
     figure = plan_figure(plan, _config().cell)
     for axes in figure.axes:
