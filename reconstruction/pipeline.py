@@ -40,7 +40,7 @@ from reconstruction.handeye.correction import (
     plausible_correction,
 )
 from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment
-from reconstruction.hangings.merge import group_positions, place_hangings
+from reconstruction.hangings.merge import group_positions, left_out, place_hangings
 from reconstruction.registration.all_views import EdgeReport, RegisteredViews, register_hangings
 from reconstruction.registration.filtering import (
     FilterConfig,
@@ -152,7 +152,7 @@ class ReconstructionResult:
     @property
     def left_out(self) -> tuple[int, ...]:
         """The hangings (0-based) left out of the model: their alignment did not verify."""
-        return tuple(a.hanging for a in self.alignments if not a.verified)
+        return left_out(self.alignments)
 
 
 def build_surfaces(
@@ -379,7 +379,7 @@ def reconstruct_views(
         )
     X_WC, alignments, kept = placed.X_WC, placed.alignments, placed.kept
     hanging_of = {k: h for h, group in enumerate(groups) for k in group}
-    if len(groups) - len(placed.left_out) > 1 and "poisson" in config.surfaces.methods:
+    if len(groups) - len(left_out(alignments)) > 1 and "poisson" in config.surfaces.methods:
         # Hangings together surround the object: its closed model comes from the same solve.
         methods = tuple(dict.fromkeys((*config.surfaces.methods, "poisson_closed")))
         config = replace(config, surfaces=replace(config.surfaces, methods=methods))

@@ -91,6 +91,11 @@ def align_hangings(
     return X_WC, tuple(alignments)
 
 
+def left_out(alignments: Sequence[PassAlignment]) -> tuple[int, ...]:
+    """The hangings (0-based) whose alignment did not verify: left out of the model."""
+    return tuple(a.hanging for a in alignments if not a.verified)
+
+
 def to_first_frame(alignments: Sequence[PassAlignment]) -> list[np.ndarray | None]:
     """Per hanging (the first one included), the transform of its frame into the first's;
     None for a hanging left out (its alignment did not verify)."""
@@ -112,11 +117,6 @@ class PlacedHangings:
     kept: list[int]
     fixtures: list[FixtureLine]
     remove_points: RemovePoints | None
-
-    @property
-    def left_out(self) -> tuple[int, ...]:
-        """The hangings (0-based) whose alignment did not verify."""
-        return tuple(a.hanging for a in self.alignments if not a.verified)
 
 
 def place_hangings(
@@ -146,7 +146,7 @@ def place_hangings(
         remove_points = in_own_frames(
             remove_points, T_of, {v.index: hanging_of[k] for k, v in enumerate(views)}
         )
-    left = {a.hanging for a in alignments if not a.verified}
+    left = left_out(alignments)
     kept = [k for k in range(len(views)) if hanging_of[k] not in left]
     return PlacedHangings(list(X_WC), alignments, kept, moved, remove_points)
 
