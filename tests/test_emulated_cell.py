@@ -177,7 +177,8 @@ def views_and_joints_partial(scan_dir: Path) -> list[int]:
         ({"robot": {"motion_port": "eleven"}}, "hardware.robot.motion_port: expected an integer"),
         (
             {"camera": {"kind": "opencv", "left": "missing_%04d.png", "right": "m_%04d.png"}},
-            "hardware.camera.left: cannot open 'missing_%04d.png'",
+            # A recording's relative path is read from the configuration's folder.
+            "hardware.camera.left: cannot open '{folder}/missing_%04d.png'",
         ),
     ],
 )
@@ -192,6 +193,7 @@ def test_bad_hardware_sections_are_one_line_and_nothing_moves(tmp_path, hardware
         path.write_text(yaml.safe_dump(dict(TINY_SCAN) | {"hardware": section}))
         r = scanner("scan", "--config", path, "--out", tmp_path / "s")
         assert r.returncode == 2, r.stderr
+        expected = expected.replace("{folder}", str(tmp_path))
         assert expected in r.stderr and len(r.stderr.strip().splitlines()) == 1
         assert em.received == []
 
@@ -301,5 +303,6 @@ def test_a_realsense_that_is_not_there_or_not_the_sensor_is_one_line(tmp_path, s
         path.write_text(yaml.safe_dump(config))
         r = scanner("scan", "--config", path, "--out", tmp_path / "s")
         assert r.returncode == 2, r.stderr
+        expected = expected.replace("{folder}", str(tmp_path))
         assert expected in r.stderr and len(r.stderr.strip().splitlines()) == 1
         assert em.received == [] and not (tmp_path / "s").exists()
