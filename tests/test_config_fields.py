@@ -34,29 +34,6 @@ SCAN_OVERRIDES = {
     "hangings": 0,
 }
 
-SCAN_FIELDS = leaf_fields(ScanConfig)
-
-
-def test_the_table_walks_every_section():
-    keys = {".".join(path) for path, _ in SCAN_FIELDS}
-    assert {"object", "processing.primary_surface", "monitor.tracking.fps"} <= keys
-    assert len(keys) > 250
-    assert set(SCAN_OVERRIDES) <= keys  # no override outlives its field
-
-
-@pytest.mark.parametrize("path, tp", SCAN_FIELDS, ids=[".".join(path) for path, _ in SCAN_FIELDS])
-def test_a_bad_value_of_any_scan_field_is_refused_at_load(tmp_path, path, tp):
-    key = ".".join(path)
-    config_file = tmp_path / "scan.yaml"
-    config_file.write_text(yaml.safe_dump(nested(path, bad_value(path, tp, SCAN_OVERRIDES))))
-    with pytest.raises(ScannerError) as refused:
-        load_scan_config(config_file)
-    message = str(refused.value)
-    assert message.startswith(f"{config_file}: "), message
-    assert key in message and "\n" not in message, message
-
-
-CALIBRATE_FIELDS = leaf_fields(CalibrateConfig)
 CALIBRATE_OVERRIDES = {
     **{
         key: value
@@ -67,17 +44,31 @@ CALIBRATE_OVERRIDES = {
     "placement.facing_elevation_rad": 2.0,
 }
 
+# (the file's name, its loader, the overrides): each record's every field.
+RECORDS = {
+    ScanConfig: ("scan.yaml", load_scan_config, SCAN_OVERRIDES),
+    CalibrateConfig: ("calibrate.yaml", load_calibrate_config, CALIBRATE_OVERRIDES),
+}
+CASES = [(cls, path, tp) for cls in RECORDS for path, tp in leaf_fields(cls)]
+
+
+def test_the_table_walks_every_section():
+    keys = {".".join(path) for cls, path, _ in CASES if cls is ScanConfig}
+    assert {"object", "processing.primary_surface", "monitor.tracking.fps"} <= keys
+    assert len(keys) > 250
+    assert set(SCAN_OVERRIDES) <= keys  # no override outlives its field
+
 
 @pytest.mark.parametrize(
-    "path, tp", CALIBRATE_FIELDS, ids=[".".join(path) for path, _ in CALIBRATE_FIELDS]
+    "cls, path, tp", CASES, ids=[f"{RECORDS[c][0]}:{'.'.join(p)}" for c, p, _ in CASES]
 )
-def test_a_bad_value_of_any_calibration_field_is_refused_at_load(tmp_path, path, tp):
+def test_a_bad_value_of_any_field_is_refused_at_load(tmp_path, cls, path, tp):
+    name, load, overrides = RECORDS[cls]
     key = ".".join(path)
-    config_file = tmp_path / "calibrate.yaml"
-    bad = bad_value(path, tp, CALIBRATE_OVERRIDES)
-    config_file.write_text(yaml.safe_dump(nested(path, bad)))
+    config_file = tmp_path / name
+    config_file.write_text(yaml.safe_dump(nested(path, bad_value(path, tp, overrides))))
     with pytest.raises(ScannerError) as refused:
-        load_calibrate_config(config_file)
+        load(config_file)
     message = str(refused.value)
     assert message.startswith(f"{config_file}: "), message
     assert key in message and "\n" not in message, message
