@@ -203,7 +203,8 @@ def test_unknown_key_lists_the_valid_ones_through_the_cli(tmp_path, capsys):
     ],
 )
 def test_bad_flag_values_name_the_flag_not_the_config_key(argv, flag, expected, tmp_path, capsys):
-    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    (tmp_path / "in").mkdir()
+    argv = [a.replace("{tmp}", str(tmp_path / "in")) for a in argv]
     if argv[0] == "calibrate":
         argv += ["--out", str(tmp_path / "out")]
     code, line = _one_line_error(argv, capsys)

@@ -220,6 +220,7 @@ CASES = [
     (["merge", "{root}/scan", "{root}/scan2", "--out", "{root}/m"], "--force=1", None),
     (["preview"], "--object", _names(["vase", "bracket", "pebble"])),
     (["preview"], "--out", _paths(OUT_PATHS)),
+    (["preview"], "--force=yes", None),
     (["preview"], "--seed", _ints(0, 2**32 - 1)),
     (["export", "--format", "opencv", "--out", "{root}/exported"], "", _paths(PATHS)),
     (["export", "--format", "ros", "--out", "{root}/exported"], "", st.just("{root}/mono.yaml")),
