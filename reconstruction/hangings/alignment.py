@@ -25,7 +25,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from reconstruction.common.checks import check_fields, fraction, integer, positive
-from reconstruction.common.transforms import invert, rotation_angle_rad, transform_points
+from reconstruction.common.transforms import (
+    invert,
+    rotation_angle_rad,
+    snapped,
+    transform_points,
+)
 from reconstruction.hangings.symmetry import sibling_starts
 from reconstruction.registration.pairwise import correction_at
 from reconstruction.registration.views import DepthImage
@@ -395,7 +400,10 @@ def align_pass(
         )
     return PassAlignment(
         hanging,
-        T,
+        # Open3D's ICP sums in no fixed order: two runs end apart in the last bits, and the
+        # Poisson octree of the merged hangings turns that into another mesh. On a 1e-9 grid
+        # (rad, m) the same captures give the same pass transform, and so the same model.
+        snapped(T, np.eye(4)),
         overlap,
         rms,
         violation,
