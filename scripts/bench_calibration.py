@@ -5,9 +5,12 @@ Prints one JSON line (millimetres and degrees, for people):
   handeye_error_mm, handeye_error_deg        our refined X_FC
   <method>_error_mm, <method>_error_deg      each OpenCV calibrateHandEye method alone
   reprojection_rms_px                        stereo calibration RMS (both cameras)
+  focal_error_px, baseline_error_mm          the stereo calibration against the true cameras
   handeye_reprojection_rms_px                hand-eye RMS with the robot poses as reported
-  poses                                      poses used
+  poses, poses_outliers                      poses used, poses rejected as outliers
   eye_to_hand_mean_mm, eye_to_hand_std_mm    held-out distance error (KTH report: ~8 mm)
+  eye_to_hand_points                         held-out points measured
+  eye_to_hand_fit_points                     grid points used in the fit, of eye_to_hand_grid
   calibrate_s                                the whole eye-in-hand run: plan, capture, solve
   solve_s, eye_to_hand_s
 """
@@ -41,11 +44,16 @@ def main() -> None:
     out.update(
         {
             "reprojection_rms_px": round(report["stereo_rms_px"], 4),
+            "focal_error_px": [round(v, 4) for v in truth["focal_error_px"]],
+            "baseline_error_mm": round(truth["baseline_error_mm"], 4),
             "handeye_reprojection_rms_px": round(report["reprojection_rms_px"], 4),
             "poses": report["poses_used"],
+            "poses_outliers": report["poses_outliers"],
             "eye_to_hand_mean_mm": round(e2h["held_out"]["mean_distance_mm"], 4),
             "eye_to_hand_std_mm": round(e2h["held_out"]["std_distance_mm"], 4),
             "eye_to_hand_points": e2h["held_out"]["count"],
+            "eye_to_hand_fit_points": e2h["fit_points_used"],
+            "eye_to_hand_grid": e2h["grid_points"],
             "calibrate_s": round(report["calibrate_s"], 2),
             "solve_s": round(report["solve_s"], 2),
             "eye_to_hand_s": round(e2h["eye_to_hand_s"], 2),

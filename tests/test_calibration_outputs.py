@@ -1,27 +1,24 @@
 """What a calibration shows its user: corner pictures worst first, X_FC's sigma in the file and
-the report, and a report that judges each figure (a simulated eye-in-hand run, 8 stations)."""
+the report, and a report that judges each figure (the shared simulated eye-in-hand run, 8
+stations: tests/calibration_runs.py)."""
 
 import re
-from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
 
 from reconstruction.calibration.file import load_calibration
-from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.corners import DETECTED_BGR, REPROJECTED_BGR
-from scanner.calibrate.eye_in_hand import run_eye_in_hand
 from scanner.calibrate.judge import BANDS
+from tests.calibration_runs import eight_stations, solved_again
 
 NAME = re.compile(r"(\d+)_(worst_)?(\w+)_(left|right)_rms(\d+\.\d+)px\.png")
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    config = CalibrateConfig()
-    config = replace(config, stations=replace(config.stations, count=8))
-    return run_eye_in_hand(config, tmp_path_factory.mktemp("outputs") / "cal")
+def run(run_dir):
+    return eight_stations(run_dir)
 
 
 def _pictures(run):
@@ -96,16 +93,13 @@ def test_the_report_judges_every_figure_and_names_the_options(run):
     assert "--board chessboard 10x7" in options and "--stations 8" in options
 
 
-def test_the_recorded_run_solved_again_with_the_robots_own_errors(run, tmp_path):
+def test_the_recorded_run_solved_again_with_the_robots_own_errors(run, run_dir):
     """`--robot-offsets` on the rendered run's captures: the encoder offsets of the joints the
     eight stations make observable come out within 0.005 deg of the simulator's (measured:
     0.0021 deg at worst), the others are named with the reason, held-out prediction improves
     (0.46 -> 0.08 px) and X_FC comes closer to the true mount (0.116 -> 0.086 mm); the file
     carries the correction for scans."""
-    from scanner.calibrate.offline import OfflineOptions, calibrate_directory
-
-    solver = replace(CalibrateConfig().solver, robot_offsets=True)
-    again = calibrate_directory(run.out_dir, OfflineOptions(), solver, out_dir=tmp_path)
+    again = solved_again(run_dir)
     robot = again.report["robot_errors"]
     assert robot["kept"] and robot["held_out_px_with"] < robot["held_out_px_without"]
     assert {"joint 2 zero", "joint 3 zero", "joint 4 zero", "joint 5 zero"} <= set(
