@@ -1,10 +1,12 @@
-"""`scanner calibrate --offline`: the real Open3DV circle-grid set, bad input, CLI exit codes."""
+"""`scanner calibrate --offline`: the real Open3DV circle-grid set, bad input, CLI exit codes.
+
+The commands run in the test's process (`tests.in_process`); one calibration of the whole set
+(with --robot-offsets, which these poses without joint angles leave out) is read by the tests
+about its result."""
 
 import json
 import math
 import shutil
-import subprocess
-import sys
 
 import cv2
 import numpy as np
@@ -17,6 +19,7 @@ from reconstruction.calibration.pose_files import pose_format
 from reconstruction.common.errors import RefusedResultError, ScannerError
 from scanner.calibrate.offline import OfflineOptions, calibrate_directory
 from tests.conftest import shared_data
+from tests.in_process import scanner, scanner_in_fixture
 
 REAL = "real/handeye_open3dv_eye_in_hand_circlegrid"
 # The data set's README: reference = OpenCV TSAI/PARK; a test should find the rotation within
@@ -46,36 +49,36 @@ def _options(root):
     )
 
 
-def _run_open3dv(data, intrinsics_root, out, *extra):
+def _open3dv_args(data, intrinsics_root, out, *extra) -> list:
     """`scanner calibrate --offline` on Open3DV-style data with its board and convention."""
-    return _run(
+    return [
+        "calibrate",
         "--offline",
-        str(data),
+        data,
         *BOARD_ARGS,
         "--pose-convention",
         "open3dv",
         "--intrinsics",
-        str(intrinsics_root / "param.txt"),
+        intrinsics_root / "param.txt",
         *extra,
         "--out",
-        str(out),
-    )
+        out,
+    ]
 
 
-def _run(*args):
-    return subprocess.run(
-        [sys.executable, "-m", "scanner", "calibrate", *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-
-
-def test_real_circle_grid_matches_the_reference(tmp_path):
+@pytest.fixture(scope="module")
+def real_run(tmp_path_factory):
+    """The whole set calibrated with --robot-offsets: (the output folder, the command's run)."""
     root = shared_data(REAL)
-    r = _run_open3dv(root, root, tmp_path)
+    out = tmp_path_factory.mktemp("open3dv")
+    r = scanner_in_fixture(*_open3dv_args(root, root, out, "--robot-offsets"))
     assert r.returncode == 0, r.stderr
-    calibration = load_calibration(tmp_path / "results" / "calibration.yaml")
+    return out, r
+
+
+def test_real_circle_grid_matches_the_reference(real_run):
+    out, r = real_run
+    calibration = load_calibration(out / "results" / "calibration.yaml")
     assert calibration.stereo is None and calibration.camera.width == 1920
     X = calibration.X_FC
     R_ref = Rotation.from_rotvec(REFERENCE_ROTVEC).as_matrix()
@@ -101,10 +104,10 @@ def test_wrong_euler_convention_is_refused_with_the_convention_that_fits(tmp_pat
     assert not (tmp_path / "results").exists()
 
 
-def test_wrong_preset_exits_3_without_library_noise(tmp_path):
+def test_wrong_preset_exits_3_without_library_noise(tmp_path, capfd):
     root = shared_data(REAL)
-    args = ["--offline", str(root), *BOARD_ARGS, "--intrinsics", str(root / "param.txt")]
-    r = _run(*args, "--pose-convention", "kuka", "--out", str(tmp_path / "out"))
+    args = ["calibrate", "--offline", root, *BOARD_ARGS, "--intrinsics", root / "param.txt"]
+    r = scanner(capfd, *args, "--pose-convention", "kuka", "--out", tmp_path / "out")
     assert r.returncode == 3, r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "calibration refused" in lines[0], r.stderr
@@ -114,18 +117,22 @@ def test_wrong_preset_exits_3_without_library_noise(tmp_path):
     assert not list((tmp_path / "out").glob(".results.partial-*"))
 
 
-def test_offline_calibration_never_replaces_an_earlier_one(tmp_path):
+def test_offline_calibration_never_replaces_an_earlier_one(real_run, tmp_path, capfd):
     root = shared_data(REAL)
-    args = ["--offline", str(root), *BOARD_ARGS, "--pose-convention", "open3dv"]
-    args += ["--intrinsics", str(root / "param.txt"), "--out", str(tmp_path)]
-    assert _run(*args).returncode == 0
-    first = (tmp_path / "results" / "calibration.yaml").read_bytes()
-    r = _run(*args)
+    out = tmp_path / "out"
+    shutil.copytree(real_run[0], out)  # a folder holding a calibration
+    first = (out / "results" / "calibration.yaml").read_bytes()
+    r = scanner(capfd, *_open3dv_args(root, root, out))
     assert r.returncode == 2 and "holds a calibration already" in r.stderr
-    assert (tmp_path / "results" / "calibration.yaml").read_bytes() == first
-    r = _run(*args, "--force")
+    assert (out / "results" / "calibration.yaml").read_bytes() == first
+    r = scanner(capfd, *_open3dv_args(root, root, out), "--force")
     assert r.returncode == 0, r.stderr
-    assert load_calibration(tmp_path / "results" / "calibration.yaml").X_FC.shape == (4, 4)
+    # Replaced by this run's: the same data without --robot-offsets (which these poses leave
+    # out) gives the same X_FC.
+    X_FC = load_calibration(out / "results" / "calibration.yaml").X_FC
+    first_X_FC = load_calibration(real_run[0] / "results" / "calibration.yaml").X_FC
+    assert np.allclose(X_FC, first_X_FC, atol=1e-9)
+    assert "robot_errors" not in json.loads((out / "results" / "report.json").read_text())
 
 
 def _copy(root, tmp_path, names):
@@ -152,22 +159,12 @@ def test_board_not_found_is_skipped_and_reported(tmp_path):
     assert "board not found in: pos5 (no contrast" in text
 
 
-def test_too_few_poses_is_a_clear_error(tmp_path):
+def test_too_few_poses_is_a_clear_error(tmp_path, capfd):
     root = shared_data(REAL)
     folder = _copy(root, tmp_path, ["pos0", "pos1", "pos2"])
     with pytest.raises(ScannerError, match=r"only 3 of 3 poses .* record 2 more pose"):
         calibrate_directory(folder, _options(folder), out_dir=tmp_path / "out")
-    r = _run(
-        "--offline",
-        str(folder),
-        *BOARD_ARGS,
-        "--pose-convention",
-        "open3dv",
-        "--intrinsics",
-        str(folder / "param.txt"),
-        "--out",
-        str(tmp_path / "o"),
-    )
+    r = scanner(capfd, *_open3dv_args(folder, folder, tmp_path / "o"))
     assert r.returncode == 2
     assert "record 2 more pose" in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
@@ -194,31 +191,33 @@ def _fake_folder(tmp_path, pose_text):
         ),
     ],
 )
-def test_bad_pose_input_is_one_line_exit_2(tmp_path, pose_text, flags, needle):
+def test_bad_pose_input_is_one_line_exit_2(tmp_path, capfd, pose_text, flags, needle):
     folder = _fake_folder(tmp_path, pose_text)
     board = [] if "--board" in flags else BOARD_ARGS
-    r = _run("--offline", str(folder), *board, *flags, "--out", str(tmp_path / "out"))
+    r = scanner(capfd, "calibrate", "--offline", folder, *board, *flags, "--out", tmp_path / "out")
     assert r.returncode == 2, r.stderr
     assert needle in r.stderr
     assert "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
 
 
-def test_pose_list_with_wrong_column_count(tmp_path):
+def test_pose_list_with_wrong_column_count(tmp_path, capfd):
     folder = _fake_folder(tmp_path, "")
     (folder / "view0.txt").unlink()
     poses = tmp_path / "poses.csv"
     poses.write_text("0.1, 0.2, 0.3, 0, 0\n")
-    r = _run(
+    r = scanner(
+        capfd,
+        "calibrate",
         "--offline",
-        str(folder),
+        folder,
         *BOARD_ARGS,
         "--pose-layout",
         "xyz_rotvec",
         "--pose-file",
-        str(poses),
+        poses,
         "--out",
-        str(tmp_path / "out"),
+        tmp_path / "out",
     )
     assert r.returncode == 2
     assert "poses.csv line 1: 5 columns, the pose layout 'xyz_rotvec' needs 6" in r.stderr
@@ -252,14 +251,12 @@ def test_planned_mover_executes_or_reports_the_failure():
     assert executed == ["trajectory as joint_linear"]
 
 
-def test_real_data_reports_held_out_prediction_for_every_method(tmp_path):
+def test_real_data_reports_held_out_prediction_for_every_method(real_run):
     """The 8 real poses: held-out prediction (5-fold) of the chosen X_FC and of each of
     OpenCV's methods, printed and in the report; --robot-offsets on poses without joint
     angles says why nothing was estimated and calibrates without them (not a failure)."""
-    root = shared_data(REAL)
-    r = _run_open3dv(root, root, tmp_path, "--robot-offsets")
-    assert r.returncode == 0, r.stderr
-    report = json.loads((tmp_path / "results" / "report.json").read_text())
+    out, r = real_run
+    report = json.loads((out / "results" / "report.json").read_text())
     held = report["held_out"]
     assert held["folds"] == "5-fold"
     assert set(held["methods"]) == {"tsai", "park", "horaud", "andreff", "daniilidis"}
@@ -269,27 +266,27 @@ def test_real_data_reports_held_out_prediction_for_every_method(tmp_path):
     assert all(name in line for name in held["methods"])
     assert "robot errors not estimated: the poses carry no joint angles" in r.stdout
     assert report["robot_errors"]["kept"] is False
-    assert load_calibration(tmp_path / "results" / "calibration.yaml").robot is None
+    assert load_calibration(out / "results" / "calibration.yaml").robot is None
     sources = report["X_FC_sigma_sources"]
     assert sources["reported_mm"] >= max(sources["covariance_mm"], sources["bootstrap_mm"])
 
 
-def test_fewer_than_six_views_are_held_out_one_at_a_time(tmp_path):
+def test_fewer_than_six_views_are_held_out_one_at_a_time(tmp_path, capfd):
     root = shared_data(REAL)
     data = tmp_path / "five"
     data.mkdir()
     for k in range(5):
         for suffix in (".bmp", ".txt"):
             shutil.copy(root / f"pos{k}{suffix}", data / f"pos{k}{suffix}")
-    r = _run_open3dv(data, root, tmp_path / "out")
+    r = scanner(capfd, *_open3dv_args(data, root, tmp_path / "out"))
     assert r.returncode == 0, r.stderr
     report = json.loads((tmp_path / "out" / "results" / "report.json").read_text())
     assert report["held_out"]["folds"] == "leave-one-out over 5 views"
     assert "held out one at a time (leave-one-out)" in r.stdout
 
 
-def test_robot_offsets_do_not_apply_to_eye_to_hand(tmp_path):
-    r = _run("--eye-to-hand", "--robot-offsets", "--out", str(tmp_path))
+def test_robot_offsets_do_not_apply_to_eye_to_hand(tmp_path, capfd):
+    r = scanner(capfd, "calibrate", "--eye-to-hand", "--robot-offsets", "--out", tmp_path)
     assert r.returncode == 2
     assert (
         r.stderr.strip()
