@@ -10,6 +10,7 @@
   plain SGBM reference from the data's README.
 - handeye_seeds: `bench_handeye_seeds.py` (10 seeds of the simulated calibration; `--seeds-json`
   reads a line it printed, `--seed-data DIR` reuses its captures).
+`--parts` runs some of them (comma-separated names; all by default).
 Prints one JSON line.
 """
 
@@ -109,27 +110,47 @@ def middlebury() -> dict:
     return out
 
 
+PARTS = ("opencv_sample", "open3dv", "middlebury", "handeye_seeds")
+
+
+def _parts(text: str) -> list[str]:
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    unknown = [p for p in parts if p not in PARTS]
+    if unknown or not parts:
+        raise argparse.ArgumentTypeError(f"expected some of {', '.join(PARTS)}, got {text!r}")
+    return parts
+
+
+def handeye_seeds(seeds_json: Path | None, seed_data: Path | None) -> dict:
+    if seeds_json is not None:
+        return json.loads(seeds_json.read_text())
+    cmd = [sys.executable, str(Path(__file__).with_name("bench_handeye_seeds.py"))]
+    if seed_data is not None:
+        cmd += ["--data", str(seed_data)]
+    return json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds-json", type=Path, help="a line bench_handeye_seeds.py printed")
     parser.add_argument("--seed-data", type=Path, help="reuse bench_handeye_seeds' captures")
+    parser.add_argument(
+        "--parts", type=_parts, default=list(PARTS), help=f"some of {','.join(PARTS)} (all)"
+    )
     args = parser.parse_args()
     require(REAL, "bench_real")
+    result = {}
     with tempfile.TemporaryDirectory() as tmp:
-        result = {
-            "opencv_sample": opencv_sample(Path(tmp) / "sample"),
-            "open3dv": open3dv(Path(tmp) / "open3dv"),
-            "middlebury": middlebury(),
-        }
-    if args.seeds_json is not None:
-        seeds = json.loads(args.seeds_json.read_text())
-    else:
-        cmd = [sys.executable, str(Path(__file__).with_name("bench_handeye_seeds.py"))]
-        if args.seed_data is not None:
-            cmd += ["--data", str(args.seed_data)]
-        seeds = json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout)
-    result["handeye_seeds"] = {k: v for k, v in seeds.items() if k.endswith(("_mm", "_deg"))}
-    result["handeye_refined_beats_every_method"] = seeds["handeye_refined_beats_every_method"]
+        if "opencv_sample" in args.parts:
+            result["opencv_sample"] = opencv_sample(Path(tmp) / "sample")
+        if "open3dv" in args.parts:
+            result["open3dv"] = open3dv(Path(tmp) / "open3dv")
+        if "middlebury" in args.parts:
+            result["middlebury"] = middlebury()
+    if "handeye_seeds" in args.parts:
+        seeds = handeye_seeds(args.seeds_json, args.seed_data)
+        result["handeye_seeds"] = {k: v for k, v in seeds.items() if k.endswith(("_mm", "_deg"))}
+        result["handeye_refined_beats_every_method"] = seeds["handeye_refined_beats_every_method"]
     print(json.dumps(result))
 
 

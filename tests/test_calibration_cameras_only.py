@@ -1,5 +1,10 @@
 """Camera-only calibration (`scanner calibrate --offline DIR` without robot poses) on OpenCV's
-real stereo sample (13 pairs, 10x7 squares), and its bad input."""
+real stereo sample (10x7 squares), and its bad input.
+
+The calibration runs on the sample's first 5 of 13 pairs: OpenCV's stereoCalibrate takes 1.5 s
+on them, 11 s on all 13, and the figures below hold on both (measured on 5 pairs: stereo RMS
+0.203 px, epipolar median / p95 0.079 / 0.284 px, focal 534.7 / 537.5 px, baseline 83.2 mm).
+The whole sample's figures are scripts/bench_real.py's (`--parts opencv_sample`)."""
 
 from __future__ import annotations
 
@@ -16,24 +21,34 @@ from tests.conftest import shared_data
 
 SAMPLE = "real/stereo_calibration_opencv_sample"
 BOARD = ["--board", "chessboard", "--board-size", "10x7", "--board-spacing", "0.025"]
+PAIRS = 5
 
 
 def _calibrate(folder, out, *extra):
     return main(["calibrate", "--offline", str(folder), *BOARD, "--out", str(out), *extra])
 
 
+def _first_images(folder, count):
+    """The first `count` images of a folder, in name order."""
+    return sorted(folder.iterdir())[:count]
+
+
 @pytest.fixture(scope="module")
 def sample_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("cams") / "out"
-    assert _calibrate(shared_data(SAMPLE), out) == 0
-    return out / "results"
+    root = tmp_path_factory.mktemp("cams")
+    for side in ("left", "right"):
+        (root / "pairs" / side).mkdir(parents=True)
+        for image in _first_images(shared_data(SAMPLE) / side, PAIRS):
+            shutil.copy(image, root / "pairs" / side / image.name)
+    assert _calibrate(root / "pairs", root / "out") == 0
+    return root / "out" / "results"
 
 
 def test_stereo_sample_is_calibrated_without_robot_poses(sample_run):
     report = json.loads((sample_run / "report.json").read_text())
-    # Every board of the sample is found (OpenCV's classic detector finds all 26).
-    assert report["boards_found"] == report["images"] == 13
-    assert report["boards_found_right"] == 13
+    # Every board is found (OpenCV's classic detector finds all 26 of the whole sample).
+    assert report["boards_found"] == report["images"] == PAIRS
+    assert report["boards_found_right"] == PAIRS
     # OpenCV 4.x on this sample: 0.22-0.29 px depending on flags.
     assert report["stereo_rms_px"] <= 0.30
     # Rectified corners on the same row: SGBM searches along rows.
@@ -42,7 +57,7 @@ def test_stereo_sample_is_calibrated_without_robot_poses(sample_run):
     assert all(520 < f < 548 for f in report["focal_px"])
     assert report["baseline_m"] == pytest.approx(3.34 * 0.025, rel=0.03)
     assert 0.2 < report["board_coverage"] < 1.0
-    assert len(report["per_image"]) == 13
+    assert len(report["per_image"]) == PAIRS
     calibration = load_calibration(sample_run / "calibration.yaml")
     assert calibration.stereo is not None
     assert calibration.stereo.baseline_m == pytest.approx(report["baseline_m"])
@@ -95,7 +110,9 @@ def test_no_board_anywhere_says_why(tmp_path, capsys):
 
 def test_a_wrong_board_size_says_what_was_seen(tmp_path, capsys):
     folder = tmp_path / "mono"
-    shutil.copytree(shared_data(SAMPLE) / "left", folder)
+    folder.mkdir()
+    for image in _first_images(shared_data(SAMPLE) / "left", 3):
+        shutil.copy(image, folder / image.name)
     out = tmp_path / "out"
     args = ["calibrate", "--offline", str(folder), "--board", "chessboard"]
     args += ["--board-size", "9x7", "--board-spacing", "0.025", "--out", str(out)]
