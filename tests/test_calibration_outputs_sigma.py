@@ -1,10 +1,13 @@
-"""The reported standard deviation of X_FC against the simulator's truth over ten seeds.
+"""The reported standard deviation of X_FC against the simulator's truth over three seeds.
 
-Ten calibrations without rendering (`scanner.calibrate.sigma_check.render_free_observations`:
+Three calibrations without rendering (`scanner.calibrate.sigma_check.render_free_observations`:
 the default stations, the seeded error model, corner noise as measured on the renders), 1-3 s
 each: once with the default error model (encoder offsets), once with the robot's kinematic
 errors on as well (link lengths off by 0.5-1 mm per calibration) and the solver told the arm's
-accuracy. The rendered version of the same check is scripts/bench_calibration_sigma.py.
+accuracy. Honesty is a statistic ("at least 9 runs in 10 within 3 sigma"): it is
+scripts/bench_calibration_sigma.py's, over seeds 0-9 (and its --rendered version on rendered
+calibrations); here every one of the three runs must lie within 3 sigma (measured: at most 0.4
+sigma with encoder offsets, 1.74 with link errors).
 """
 
 import math
@@ -22,6 +25,7 @@ from scanner.calibrate.sigma_check import error_in_sigmas, render_free_observati
 
 # The simulated arm's accuracy with link lengths off by 0.5-1 mm: what its user would state.
 KINEMATIC_ERROR_M = (0.0005, 0.001)
+SEEDS = 3
 ARM_ACCURACY = {"robot_translation_sigma_m": 0.0005, "robot_rotation_sigma_rad": math.radians(0.02)}
 
 
@@ -31,7 +35,7 @@ def _ratios(kinematic_error_m=None, **solver):
     settings = replace(config.solver, **solver)
     rows = []
     for observations, X_FC_true, _ in render_free_observations(
-        config, range(10), kinematic_error_m
+        config, range(SEEDS), kinematic_error_m
     ):
         he = calibrate_hand_eye(config.board, observations, stereo, settings)
         rows.append((he, error_in_sigmas(he.X_FC, he.X_FC_sigma, X_FC_true)))
@@ -50,9 +54,10 @@ def kinematic_errors():
 
 @pytest.mark.slow
 def test_the_true_error_lies_within_3_sigma_in_9_of_10_runs(encoder_errors):
+    # Nine of ten over seeds 0-9 is bench_calibration_sigma.py's; three of three here.
     summary = summarise([r for _, r in encoder_errors])
-    assert summary.runs == 10
-    assert summary.within_3sigma >= 9, summary
+    assert summary.runs == SEEDS
+    assert summary.within_3sigma == SEEDS, summary
     # Not honest by being huge: the data's part stays a few hundredths of a mm; the rest is
     # the robot's stated accuracy (0.2 mm, 0.02 deg), which no hand-eye data can see through.
     sigma = np.array([he.X_FC_sigma for he, _ in encoder_errors])
@@ -69,8 +74,9 @@ def test_with_the_robots_kinematic_errors_the_sigma_still_holds(kinematic_errors
     robot's accuracy term); with the arm's stated accuracy the truth lies within 3 sigma."""
     ratios = [r for _, r in kinematic_errors]
     summary = summarise(ratios)
-    assert summary.within_3sigma >= 9, summary
-    # And not uselessly wide: on average the errors are a sizeable fraction of their sigmas.
+    assert summary.within_3sigma == SEEDS, summary
+    # And not uselessly wide: on average the errors are a sizeable fraction of their sigmas
+    # (measured: 0.378 over these three runs, 0.421 over ten).
     assert 0.3 < float(np.mean(ratios)) < 1.5
 
 
