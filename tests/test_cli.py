@@ -1,4 +1,7 @@
-"""The command line: help texts and one-line user errors with exit code 2."""
+"""The command line: help texts and one-line user errors with exit code 2.
+
+The commands run in the test's process (`tests.in_process`) but for `python -m scanner
+--version`, which checks the module's own entry point."""
 
 import subprocess
 import sys
@@ -6,12 +9,7 @@ import sys
 import pytest
 
 from scanner.commands.main import main
-
-
-def _run(*args):
-    return subprocess.run(
-        [sys.executable, "-m", "scanner", *args], capture_output=True, text=True, timeout=300
-    )
+from tests.in_process import scanner
 
 
 @pytest.mark.parametrize("args", [[], ["scan"], ["calibrate"], ["reconstruct"], ["preview"]])
@@ -33,18 +31,18 @@ def test_help(args, capsys):
         (["preview", "--object", "/nonexistent/mesh.stl"], "no such mesh file"),
     ],
 )
-def test_user_errors_are_one_line_exit_2(args, needle, tmp_path):
-    r = _run(*args, "--out", str(tmp_path / "o"))
+def test_user_errors_are_one_line_exit_2(args, needle, tmp_path, capfd):
+    r = scanner(capfd, *args, "--out", tmp_path / "o")
     assert r.returncode == 2
     assert needle in r.stderr
     assert "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
 
 
-def test_preview_writes_pngs(tmp_path):
+def test_preview_writes_pngs(tmp_path, capfd):
     import cv2
 
-    r = _run("preview", "--out", str(tmp_path))
+    r = scanner(capfd, "preview", "--out", tmp_path)
     assert r.returncode == 0, r.stderr
     left = cv2.imread(str(tmp_path / "left.png"))
     assert left.shape == (960, 1280, 3)
@@ -52,15 +50,15 @@ def test_preview_writes_pngs(tmp_path):
 
 
 @pytest.mark.parametrize("command", [["reconstruct"], ["scan", "--resume"]])
-def test_a_folder_that_is_not_a_scan_is_refused(command, tmp_path):
+def test_a_folder_that_is_not_a_scan_is_refused(command, tmp_path, capfd):
     (tmp_path / "holiday.jpg").write_bytes(b"not a scan")
-    r = _run(*command, str(tmp_path))
+    r = scanner(capfd, *command, tmp_path)
     assert r.returncode == 2
     assert "not a scan directory" in r.stderr and "Traceback" not in r.stderr
     assert (tmp_path / "holiday.jpg").read_bytes() == b"not a scan"
 
 
-def test_printed_config_loads_back_as_the_same_configuration(tmp_path):
+def test_printed_config_loads_back_as_the_same_configuration(tmp_path, capfd):
     from scanner.configs.scan import (
         ScanConfig,
         load_scan_config,
@@ -68,7 +66,7 @@ def test_printed_config_loads_back_as_the_same_configuration(tmp_path):
         with_overrides,
     )
 
-    r = _run("scan", "--print-config", "--views", "7", "--object", "bracket")
+    r = scanner(capfd, "scan", "--print-config", "--views", "7", "--object", "bracket")
     assert r.returncode == 0, r.stderr
     path = tmp_path / "scan.yaml"
     path.write_text(r.stdout)
@@ -78,7 +76,7 @@ def test_printed_config_loads_back_as_the_same_configuration(tmp_path):
     assert scan_config_to_dict(config) == scan_config_to_dict(expected)
     bad = tmp_path / "bad.yaml"
     bad.write_text(r.stdout.replace("radius_m: 0.5", "radius_mm: 500"))
-    r = _run("scan", "--config", str(bad), "--print-config")
+    r = scanner(capfd, "scan", "--config", bad, "--print-config")
     assert r.returncode == 2 and "unknown key(s) radius_mm" in r.stderr
 
 
@@ -89,8 +87,8 @@ def test_printed_config_loads_back_as_the_same_configuration(tmp_path):
         (["--eye-to-hand", "--driver", "tests.simulated_hardware:connect"], "simulator only"),
     ],
 )
-def test_calibrate_driver_misuse_is_refused(args, needle, tmp_path):
-    r = _run("calibrate", *args, "--out", str(tmp_path / "out"))
+def test_calibrate_driver_misuse_is_refused(args, needle, tmp_path, capfd):
+    r = scanner(capfd, "calibrate", *args, "--out", tmp_path / "out")
     assert r.returncode == 2 and needle in r.stderr, r.stderr
     assert "Traceback" not in r.stderr and not (tmp_path / "out").exists()
 
@@ -98,7 +96,9 @@ def test_calibrate_driver_misuse_is_refused(args, needle, tmp_path):
 def test_version_is_the_installed_package_version():
     from importlib.metadata import version
 
-    r = _run("--version")
+    r = subprocess.run(
+        [sys.executable, "-m", "scanner", "--version"], capture_output=True, text=True, timeout=300
+    )
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == f"scanner {version('scanner')}"
 
