@@ -1,9 +1,11 @@
-"""The 12-view vase scan (shared with test_reconstruct_scan.py) reconstructed from bad inputs: a
-damaged capture, and a calibration whose mount is 40 mm / 10 deg off. The figures these tests
-check do not depend on the surfaces, so they build one cheap surface (TSDF) or none of the
-registration where that is not what is tested."""
+"""Reconstruction from bad inputs: a damaged capture, and a calibration whose mount is 40 mm /
+10 deg off, corrected on the 12-view vase scan (shared with test_reconstruct_scan.py) and
+flagged where the correction cannot get there. The figures these tests check do not depend on
+the surfaces, so they build one coarse surface (TSDF at 2 mm) or none of the registration
+where that is not what is tested."""
 
 import json
+import shutil
 from dataclasses import replace
 
 import numpy as np
@@ -11,17 +13,21 @@ import pytest
 import yaml
 
 from reconstruction.pipeline import variant_config
-from scanner.configs.scan import ProcessingConfig
 from scanner.reconstruct.stages import run_reconstruct
 from scanner.reports.self_checks import EXIT_SELF_CHECK_FAILED
 from scanner.scan_dir.captures import CaptureStore
+from scanner.scan_dir.manifest import open_scan
+from tests.in_process import scanner
+from tests.tiny_scan import TINY_PROCESSING
 
 pytestmark = pytest.mark.slow
 
-# The registration and the hand-eye correction as configured; the TSDF mesh alone as surface.
+# The registration and the hand-eye correction as configured; the TSDF mesh alone as surface,
+# on a 2 mm grid, and the truth's metrics on 20,000 samples.
 TSDF_ONLY = {
-    "reconstruction": {"surfaces": {"methods": ["tsdf"]}},
+    "reconstruction": {"surfaces": {"methods": ["tsdf"], "tsdf_voxel_size_m": 0.002}},
     "primary_surface": "tsdf",
+    "metric_samples": 20_000,
 }
 
 
@@ -30,20 +36,18 @@ def scan_dir(vase12_scan_dir):
     return vase12_scan_dir
 
 
-def test_a_damaged_capture_is_skipped_and_reported(scan_dir, tmp_path):
-    import shutil
-
+def test_a_damaged_capture_is_skipped_and_reported(tiny_scan, tmp_path):
     copy = tmp_path / "copy"
-    shutil.copytree(scan_dir, copy)
+    shutil.copytree(tiny_scan.scan_dir, copy)
     (copy / "captures" / "0003" / "right.png").write_bytes(b"\x89PNG\r\n\x1a\n cut short")
     store = CaptureStore.open(copy)
     # Which captures are used depends on neither the registration nor the surfaces: pose-only
     # poses and the TSDF mesh alone.
-    base = ProcessingConfig()
+    base = open_scan(copy).config.processing
     tsdf_only = replace(base.reconstruction.surfaces, methods=("tsdf",))
     reconstruction = replace(variant_config(base.reconstruction, "pose_only"), surfaces=tsdf_only)
     processing = replace(base, reconstruction=reconstruction, primary_surface="tsdf")
-    run = run_reconstruct(copy, processing, tmp_path / "out")
+    run = run_reconstruct(copy, processing, tmp_path / "out", page=False)
     (skipped,) = run.report["captures_skipped"]
     assert skipped["index"] == 3 and "right.png" in skipped["reason"]
     assert run.report["captures_used"] == len(store.captured_indices()) - 1
@@ -55,7 +59,6 @@ def _rough_mount_calibration(scan_dir, path):
     from reconstruction.common.transforms import twist_to_pose
     from reconstruction.evaluation.metrics import handeye_error
     from scanner.reconstruct.scan_views import load_truth_of
-    from scanner.scan_dir.manifest import open_scan
 
     scan = open_scan(scan_dir)
     X_FC_true = load_truth_of(scan_dir)[0].X_FC
@@ -68,37 +71,48 @@ def _rough_mount_calibration(scan_dir, path):
     return path
 
 
-def test_a_rough_mount_is_corrected_or_flagged_from_the_command_line(scan_dir, tmp_path, capsys):
-    from scanner.commands.main import main
-
+def test_a_rough_mount_is_corrected_or_flagged_from_the_command_line(
+    scan_dir, tiny_scan, tmp_path, capfd
+):
     calibration = _rough_mount_calibration(scan_dir, tmp_path / "rough.yaml")
     (tmp_path / "tsdf.yaml").write_text(yaml.safe_dump(TSDF_ONLY))
-    args = ["reconstruct", str(scan_dir), "--calibration", str(calibration)]
+    args = ["reconstruct", scan_dir, "--calibration", calibration]
     wide = tmp_path / "wide"
-    assert main([*args, "--config", str(tmp_path / "tsdf.yaml"), "--out", str(wide)]) == 0
-    printed = capsys.readouterr().out
+    r = scanner(capfd, *args, "--config", tmp_path / "tsdf.yaml", "--out", wide)
+    assert r.returncode == 0, r.stderr
     report = json.loads((wide / "report.json").read_text())
-    assert report["handeye_converged"] is True and "WARNING" not in printed
+    assert report["handeye_converged"] is True and "WARNING" not in r.stdout
     assert report["handeye_error_mm"] < 0.5 and report["handeye_error_deg"] < 0.1
-    # Without the coarse stage the correction cannot get there; it must say so and keep the
-    # nominal-pose cloud.
+    # Without the coarse stage the correction cannot get there: it must say so and keep the
+    # nominal-pose cloud. Shown on the tiny scan (5 views, 320x240, its own coarse surfaces),
+    # where the failure costs a tenth of the vase's.
+    calibration = _rough_mount_calibration(tiny_scan.scan_dir, tmp_path / "rough_tiny.yaml")
     config = {
         **TSDF_ONLY,
         "reconstruction": {
-            **TSDF_ONLY["reconstruction"],
+            "surfaces": {**TINY_PROCESSING["reconstruction"]["surfaces"], "methods": ["tsdf"]},
             "handeye": {"coarse": {"enabled": False}},
         },
     }
     (tmp_path / "no_coarse.yaml").write_text(yaml.safe_dump(config))
     out = tmp_path / "narrow"
     # Written, but the exit code and the last line say it is not to be trusted.
-    rc = main([*args, "--config", str(tmp_path / "no_coarse.yaml"), "--out", str(out)])
-    assert rc == EXIT_SELF_CHECK_FAILED
-    printed = capsys.readouterr().out
-    assert printed.strip().splitlines()[-1].startswith("verdict: FAILED its self-checks")
+    r = scanner(
+        capfd,
+        "reconstruct",
+        tiny_scan.scan_dir,
+        "--calibration",
+        calibration,
+        "--config",
+        tmp_path / "no_coarse.yaml",
+        "--out",
+        out,
+    )
+    assert r.returncode == EXIT_SELF_CHECK_FAILED, r.stderr
+    assert r.stdout.strip().splitlines()[-1].startswith("verdict: FAILED its self-checks")
     report = json.loads((out / "report.json").read_text())
     assert report["handeye_error_mm"] > 2.0  # the premise
     assert report["handeye_converged"] is False and report["handeye_diagnosis"]["failures"]
-    assert "WARNING: the hand-eye correction did not converge" in printed
+    assert "WARNING: the hand-eye correction did not converge" in r.stdout
     assert "WARNING" in (out / "summary.md").read_text()
     assert (out / "fused_cloud_nominal.ply").stat().st_size > 0
