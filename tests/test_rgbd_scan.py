@@ -1,31 +1,30 @@
 """The RGB-D sensor through the whole chain in simulation: calibration finds X_FC from the colour
 images and the device's depth-scale error from the board; a scan with that calibration models
-the object as well as one with an exact device, and better than one without it."""
+the object as well as one with an exact device, and better than one without it.
+
+The commands run in the test's process (`tests.in_process`); the scans build the Poisson surface
+alone (the tiny scan's coarse settings): what is compared is the fused cloud."""
 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
+from tests.in_process import scanner, scanner_in_fixture
 from tests.tiny_scan import TINY_PROCESSING
 
 pytestmark = pytest.mark.slow
 
 DEPTH_SCALE_ERROR = 0.01  # the device reports depth 1 % short
-
-
-def scanner(*args) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "scanner", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
+PROCESSING = {
+    **TINY_PROCESSING,
+    "reconstruction": {
+        "surfaces": {**TINY_PROCESSING["reconstruction"]["surfaces"], "methods": ["poisson"]}
+    },
+}
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +36,9 @@ def calibration(tmp_path_factory) -> tuple[Path, dict]:
             {"stations": {"count": 10}, "error_model": {"depth_scale_error": DEPTH_SCALE_ERROR}}
         )
     )
-    r = scanner("calibrate", "--config", config, "--sensor", "rgbd", "--out", root / "cal")
+    r = scanner_in_fixture(
+        "calibrate", "--config", config, "--sensor", "rgbd", "--out", root / "cal"
+    )
     assert r.returncode == 0, r.stderr
     results = root / "cal" / "results"
     return results / "calibration.yaml", json.loads((results / "report.json").read_text())
@@ -53,30 +54,30 @@ def test_calibration_finds_the_mount_and_the_depth_scale(calibration):
     assert yaml.safe_load(path.read_text())["depth_correction"] == report["depth_correction"]
 
 
-def _scan(root: Path, name: str, depth_scale_error: float, calibration: Path | None) -> dict:
+def _scan(capfd, root: Path, name: str, depth_scale_error: float, calibration: Path | None) -> dict:
     config = {
         "hangings": 1,
         "sensor": "rgbd",
         "views": {"count": 6, "candidates": 200, "roll_candidates": 4},
         "planner": {"roadmap_milestones": 120, "prm_build_time_s": 20.0},
-        "processing": TINY_PROCESSING,
+        "processing": PROCESSING,
         "error_model": {"depth_scale_error": depth_scale_error},
     }
     if calibration is not None:
         config["calibration_file"] = str(calibration)
     path = root / f"{name}.yaml"
     path.write_text(yaml.safe_dump(config))
-    r = scanner("scan", "--config", path, "--out", root / name)
+    r = scanner(capfd, "scan", "--config", path, "--out", root / name)
     assert r.returncode == 0, r.stderr
     report = json.loads((root / name / "results" / "report.json").read_text())
     assert report["sensor"] == "RGB-D camera (depth 848x480, colour 960x540)"
     return report
 
 
-def test_a_scan_with_the_calibration_undoes_the_depth_scale_error(calibration, tmp_path):
-    exact = _scan(tmp_path, "exact", 0.0, None)
-    uncorrected = _scan(tmp_path, "uncorrected", DEPTH_SCALE_ERROR, None)
-    corrected = _scan(tmp_path, "corrected", DEPTH_SCALE_ERROR, calibration[0])
+def test_a_scan_with_the_calibration_undoes_the_depth_scale_error(calibration, tmp_path, capfd):
+    exact = _scan(capfd, tmp_path, "exact", 0.0, None)
+    uncorrected = _scan(capfd, tmp_path, "uncorrected", DEPTH_SCALE_ERROR, None)
+    corrected = _scan(capfd, tmp_path, "corrected", DEPTH_SCALE_ERROR, calibration[0])
     fused = {
         k: r["surfaces"]["fused_cloud"]["chamfer_observed_mm"]
         for k, r in (("exact", exact), ("uncorrected", uncorrected), ("corrected", corrected))
@@ -87,7 +88,13 @@ def test_a_scan_with_the_calibration_undoes_the_depth_scale_error(calibration, t
     # Offline: the uncorrected captures reconstructed with the calibration are corrected too.
     out = tmp_path / "offline"
     r = scanner(
-        "reconstruct", tmp_path / "uncorrected", "--calibration", calibration[0], "--out", out
+        capfd,
+        "reconstruct",
+        tmp_path / "uncorrected",
+        "--calibration",
+        calibration[0],
+        "--out",
+        out,
     )
     assert r.returncode == 0, r.stderr
     offline = json.loads((out / "report.json").read_text())
