@@ -139,7 +139,12 @@ def test_bad_monitor_input_is_a_one_line_error(tmp_path, capsys):
         run_scan(_config(intruder_start_s=(500.0,)), tmp_path / "late")
 
 
-def test_the_monitor_command_reports_an_intruder(capsys):
-    assert main(["monitor", "--duration", "6", "--intruder", "2"]) == 0
+def test_the_monitor_command_reports_an_intruder(tmp_path, capsys):
+    # The intruder reaches in as the background model is ready (2 s of frames) and is seen
+    # at once (measured: 2.13 s); the lag limit as in _config.
+    config = tmp_path / "monitor.yaml"
+    config.write_text(yaml.safe_dump({"monitor": {"max_lag_s": 2.0}}))
+    assert main(["monitor", "--duration", "3", "--intruder", "2", "--config", str(config)]) == 0
     out = capsys.readouterr().out
     assert "intrusions 1 of 1 detected, 0 false alarms" in out
+    assert "monitor: 45 frames over 3.0 s" in out
