@@ -1,4 +1,6 @@
-"""End-to-end simulated scans: tiny (few views, low resolution), killed and resumed, bad input."""
+"""End-to-end simulated scans: tiny (few views, low resolution), killed and resumed, bad input.
+The command line runs in this process (tests.in_process) except where a process is killed or
+signalled."""
 
 import json
 import shutil
@@ -17,6 +19,7 @@ from reconstruction.common.errors import ScannerError
 from scanner.configs.scan import ScanConfig, load_scan_config
 from scanner.scan.run import run_scan
 from scanner.scan_dir.captures import CaptureStore
+from tests.in_process import scanner
 from tests.tiny_scan import TINY_SCAN
 
 
@@ -101,7 +104,7 @@ def _wait_for_captures(proc: subprocess.Popen, out: Path, k: int) -> None:
         time.sleep(0.02)
 
 
-def test_killed_scan_resumes_without_duplicates(tiny_config_file, tmp_path, tiny_scan):
+def test_killed_scan_resumes_without_duplicates(tiny_config_file, tmp_path, tiny_scan, capfd):
     out = tmp_path / "killed"
     proc = _start_six_view_scan(tiny_config_file, out, subprocess.DEVNULL)
     _wait_for_captures(proc, out, 2)
@@ -110,7 +113,7 @@ def test_killed_scan_resumes_without_duplicates(tiny_config_file, tmp_path, tiny
     k = len(_captures(out))
     assert 2 <= k < 6, f"the scan should have been killed mid-way, it had {k} captures"
     before = {i: (out / "captures" / f"{i:04d}" / "left.png").read_bytes() for i in _captures(out)}
-    r = subprocess.run(_scanner("--resume", str(out)), capture_output=True, text=True, timeout=600)
+    r = scanner(capfd, "scan", "--resume", out)
     assert r.returncode == 0, r.stderr
     store = CaptureStore.open(out)
     assert store.captured_indices() == list(range(6))
@@ -122,7 +125,7 @@ def test_killed_scan_resumes_without_duplicates(tiny_config_file, tmp_path, tiny
     # Every view captured, reconstruction not configured: a further resume changes nothing.
     assert store.read_manifest()["status"] == "captured"
     manifest = store.manifest_path.read_bytes()
-    r = subprocess.run(_scanner("--resume", str(out)), capture_output=True, text=True, timeout=300)
+    r = scanner(capfd, "scan", "--resume", out)
     assert r.returncode == 2 and "nothing was changed" in r.stderr, r.stderr
     assert store.manifest_path.read_bytes() == manifest
 
@@ -148,23 +151,29 @@ def test_sigterm_finishes_the_current_capture_and_leaves_a_resumable_scan(
     assert "aborted" in (out / "scan.log").read_text().lower()
 
 
-def test_offline_reconstruct_never_replaces_an_earlier_reconstruction(tiny_scan, tmp_path):
+def test_offline_reconstruct_never_replaces_an_earlier_reconstruction(tiny_scan, tmp_path, capfd):
     scan_dir = tmp_path / "scan"
     shutil.copytree(tiny_scan.scan_dir, scan_dir)
     first = (scan_dir / "results" / "mesh_poisson.ply").read_bytes()
-    cli = [sys.executable, "-m", "scanner", "reconstruct", str(scan_dir), "--no-icp"]
-    r = subprocess.run(cli, capture_output=True, text=True, timeout=600)
+    cli = ["reconstruct", scan_dir, "--no-icp"]
+    r = scanner(capfd, *cli)
     assert r.returncode == 0, r.stderr
     second = scan_dir / "results-2"
     assert f"results: {second}" in r.stdout
     assert (scan_dir / "results" / "mesh_poisson.ply").read_bytes() == first
     report = json.loads((second / "report.json").read_text())
     assert report["captures_used"] == 5 and report["chamfer_mm"] > 0
-    # An explicit --out that holds a reconstruction is refused unless --force.
-    r = subprocess.run([*cli, "--out", str(second)], capture_output=True, text=True, timeout=600)
-    assert r.returncode == 2 and "holds a reconstruction already" in r.stderr
+    # An explicit --out that holds a reconstruction is refused unless --force; one inside the
+    # scan it reads is refused in any case.
+    elsewhere = tmp_path / "elsewhere"
+    shutil.copytree(second, elsewhere)
+    r = scanner(capfd, *cli, "--out", elsewhere)
+    assert r.returncode == 2 and "holds a reconstruction already" in r.stderr, r.stderr
+    r = scanner(capfd, *cli, "--out", second)
+    assert r.returncode == 2 and "is inside SCAN_DIR" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
     assert json.loads((second / "report.json").read_text()) == report
+    assert json.loads((elsewhere / "report.json").read_text()) == report
 
 
 def test_a_scan_runs_on_a_hardware_driver(tiny_config_file, tmp_path):
@@ -201,13 +210,10 @@ def test_a_scan_runs_on_a_hardware_driver(tiny_config_file, tmp_path):
         ),
     ],
 )
-def test_bad_driver_or_hangings_is_a_user_error_before_anything_moves(tmp_path, args, needle):
-    r = subprocess.run(
-        _scanner(*args, "--views", "2", "--out", str(tmp_path / "x")),
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+def test_bad_driver_or_hangings_is_a_user_error_before_anything_moves(
+    tmp_path, args, needle, capfd
+):
+    r = scanner(capfd, "scan", *args, "--views", "2", "--out", tmp_path / "x")
     assert r.returncode == 2 and needle in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
     assert not (tmp_path / "x").exists()
@@ -217,11 +223,9 @@ def _snapshot(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
 
 
-def test_resume_of_a_complete_scan_changes_nothing(tiny_scan):
+def test_resume_of_a_complete_scan_changes_nothing(tiny_scan, capfd):
     before = _snapshot(tiny_scan.scan_dir)
-    r = subprocess.run(
-        _scanner("--resume", str(tiny_scan.scan_dir)), capture_output=True, text=True, timeout=300
-    )
+    r = scanner(capfd, "scan", "--resume", tiny_scan.scan_dir)
     assert r.returncode == 2 and "the scan is complete; nothing was changed" in r.stderr
     assert f"scanner reconstruct {tiny_scan.scan_dir}" in r.stderr
     assert _snapshot(tiny_scan.scan_dir) == before
@@ -280,14 +284,9 @@ def test_scan_status_never_goes_back(tmp_path):
         store.update_manifest(status="captured")
 
 
-def test_out_directory_that_is_not_a_scan_is_refused(tmp_path):
+def test_out_directory_that_is_not_a_scan_is_refused(tmp_path, capfd):
     (tmp_path / "notes.txt").write_text("keep me")
-    r = subprocess.run(
-        _scanner("--out", str(tmp_path), "--views", "2"),
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    r = scanner(capfd, "scan", "--out", tmp_path, "--views", "2")
     assert r.returncode == 2 and "not a scan directory" in r.stderr
     assert "Traceback" not in r.stderr
     assert (tmp_path / "notes.txt").read_text() == "keep me"
@@ -302,13 +301,8 @@ def test_out_directory_that_is_not_a_scan_is_refused(tmp_path):
         (["--object", "teacup"], "unknown object"),
     ],
 )
-def test_bad_scan_input(args, needle, tmp_path, tiny_config_file):
-    r = subprocess.run(
-        _scanner("--config", str(tiny_config_file), "--out", str(tmp_path / "s"), *args),
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+def test_bad_scan_input(args, needle, tmp_path, tiny_config_file, capfd):
+    r = scanner(capfd, "scan", "--config", tiny_config_file, "--out", tmp_path / "s", *args)
     assert r.returncode == 2, r.stderr
     assert needle in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "s").exists()
