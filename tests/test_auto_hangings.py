@@ -132,7 +132,7 @@ def test_bad_hanging_settings_are_refused_naming_the_field(overrides, needle):
 def test_an_auto_scan_asks_for_a_second_hanging_and_the_operator_follows_it(
     tmp_path: Path, monkeypatch
 ):
-    """Six views at 640x480 see about half the vase: the scanner asks for a second hanging,
+    """Six views at 640x480 see less than half the vase: the scanner asks for a second hanging,
     says how (words, picture, the side to bring up); interrupted before the object was re-hung,
     `--resume` asks for the same hanging again; the simulated operator hangs it within 25 deg
     of the request, the reconstruction merges both, and the report and summary list both
@@ -140,11 +140,14 @@ def test_an_auto_scan_asks_for_a_second_hanging_and_the_operator_follows_it(
     from scanner.configs.scan import scan_config_from_dict
     from scanner.scan.run import run_scan
     from scanner.scan.world import ScanWorld
-    from tests.tiny_scan import HALF_RESOLUTION, TINY_PROCESSING
+    from tests.tiny_scan import HALF_RESOLUTION, TINY_PROCESSING, TINY_SCAN
 
-    tiny = scan_config_from_dict({"processing": TINY_PROCESSING}, "tiny").processing
-    config = with_overrides(ScanConfig(), views=6, seed=2, hangings="auto")
-    config = replace(config, camera=HALF_RESOLUTION, max_hangings=2, processing=tiny)
+    # The tiny scan's roadmap, view candidates and coarse surface (Poisson: the one merged).
+    surfaces = {**TINY_PROCESSING["reconstruction"]["surfaces"], "methods": ["poisson"]}
+    processing = {**TINY_PROCESSING, "reconstruction": {"surfaces": surfaces}}
+    tiny = {k: TINY_SCAN[k] for k in ("planner", "views")} | {"processing": processing}
+    config = with_overrides(scan_config_from_dict(tiny, "tiny"), views=6, seed=2, hangings="auto")
+    config = replace(config, camera=HALF_RESOLUTION, max_hangings=2)
     asked = []
     rehang = ScanWorld.rehang
 

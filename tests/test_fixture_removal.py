@@ -132,18 +132,23 @@ def test_a_flat_ellipsoid_scanned_in_two_hangings_has_no_rod_in_its_model(tmp_pa
     import open3d as o3d
     import yaml
 
-    from scanner.configs.scan import ScanConfig, with_overrides
+    from scanner.configs.scan import scan_config_from_dict, with_overrides
     from scanner.scan.run import run_scan
-    from tests.tiny_scan import HALF_RESOLUTION
+    from tests.tiny_scan import HALF_RESOLUTION, TINY_PROCESSING, TINY_SCAN
 
     sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, resolution=40)
     sphere.vertices = o3d.utility.Vector3dVector(np.asarray(sphere.vertices) * [0.1, 0.05, 0.025])
     o3d.io.write_triangle_mesh(str(tmp_path / "flat.obj"), sphere)
+    # The tiny scan's roadmap, view candidates and coarse surfaces (each is checked for rods).
+    tiny = {k: TINY_SCAN[k] for k in ("planner", "views")} | {"processing": TINY_PROCESSING}
     config = with_overrides(
-        ScanConfig(), object_spec=str(tmp_path / "flat.obj"), views=10, seed=5, hangings=2
+        scan_config_from_dict(tiny, "tiny"),
+        object_spec=str(tmp_path / "flat.obj"),
+        views=10,
+        seed=5,
+        hangings=2,
     )
-    processing = replace(config.processing, metric_samples=20_000)
-    config = replace(config, camera=HALF_RESOLUTION, processing=processing)
+    config = replace(config, camera=HALF_RESOLUTION)
     result = run_scan(config, tmp_path / "scan")
     scan = result.scan_dir
     # The report's own count (against the truth) agrees.
