@@ -45,17 +45,13 @@ def test_a_scan_adds_the_next_best_views_it_was_allowed(tmp_path):
     from scanner.configs.scan import load_scan_config
     from scanner.scan.run import run_scan
     from scanner.scan_dir.captures import CaptureStore
+    from tests.tiny_scan import TINY_SCAN
 
     path = tmp_path / "small.yaml"
+    views = {**TINY_SCAN["views"], "count": 4, "max_extra_views": 2, "min_gain": 0.0}
     path.write_text(
         yaml.safe_dump(
-            {
-                "camera": {"width_px": 640, "height_px": 480, "focal_px": 660.0},
-                "views": {"count": 4, "max_extra_views": 2, "min_gain": 0.0},
-                "object": "bracket",
-                "hangings": 1,
-                "reconstruct": False,
-            }
+            {**TINY_SCAN, "views": views, "object": "bracket", "hangings": 1, "reconstruct": False}
         )
     )
     result = run_scan(load_scan_config(path), tmp_path / "scan")
