@@ -23,13 +23,13 @@ from reconstruction.registration.pairwise import IcpConfig
 from reconstruction.registration.views import ViewCloud
 from reconstruction.surfaces.config import SurfaceConfig
 
-# Defaults except 4 earlier ICP partners per view (default 5), which keeps this file at
-# seconds; with TSDF beside Poisson (the default builds Poisson alone) so that both surfaces
-# are checked.
+# Defaults except 4 earlier ICP partners per view (default 5) and Poisson depth 7 (default 8),
+# which keep this file at seconds; with TSDF beside Poisson (the default builds Poisson alone)
+# so that both surfaces are checked.
 CONFIG = ReconstructionConfig(
     filter=FilterConfig(roi=RegionOfInterest(center_m=tuple(OBJECT_CENTER_W))),
     icp=IcpConfig(max_pairs_per_view=4),
-    surfaces=SurfaceConfig(methods=("poisson", "tsdf"), poisson_depth=8),
+    surfaces=SurfaceConfig(methods=("poisson", "tsdf"), poisson_depth=7),
 )
 NO_SURFACES = replace(CONFIG, surfaces=SurfaceConfig(methods=()))
 
@@ -115,9 +115,9 @@ def test_meshes_and_timings(scan, corrected):
             n_samples=40_000,
         )
         # The test camera's 1 mm pixels undersample grazing surfaces (the bracket's bores):
-        # the views' own points cover only ~94 % of the observed surface, the meshes 90-95 %.
+        # the views' own points cover only ~94 % of the observed surface, the meshes 89-95 %.
         assert m["completeness_observed_2mm"] > 0.85
-        assert m["accuracy_p90_mm"] < 0.6  # measured 0.18 (Poisson) and 0.45 (TSDF)
+        assert m["accuracy_p90_mm"] < 0.6  # measured 0.16 (Poisson) and 0.45 (TSDF)
     # Choosing the pairs is part of registering each view as it arrives ("icp").
     stages = {"filter", "icp", "pose_graph", "handeye", "fuse", "poisson", "tsdf"}
     assert stages <= set(corrected.timings_s)
@@ -126,7 +126,7 @@ def test_meshes_and_timings(scan, corrected):
 
 def test_variants_switch_the_stages(scan, corrected):
     pose_only = reconstruct_views(
-        scan.views, scan.X_FC_nominal, variant_config(NO_SURFACES, "pose_only")
+        scan.views[:4], scan.X_FC_nominal, variant_config(NO_SURFACES, "pose_only")
     )
     assert pose_only.handeye is None and pose_only.edges == ()
     for v in pose_only.views:
@@ -251,10 +251,12 @@ def test_variant_clouds_from_one_run(scan, corrected):
 
 @pytest.fixture(scope="module")
 def rough_scan():
-    """The same bracket scan with the camera mounted 40 mm / 10 deg off its nominal pose."""
+    """The bracket scan with the camera mounted 40 mm / 10 deg off its nominal pose, from 6
+    views (the coarse stage's fits and the fine fit cost as many views; 6 suffice: measured
+    0.14 mm / 0.003 deg after the correction)."""
     return make_scan(
         "bracket",
-        directions=cap_directions(12, ROBOT_SIDE, math.radians(35.0)),
+        directions=cap_directions(6, ROBOT_SIDE, math.radians(35.0)),
         image_size=(480, 360),
         focal_px=495.0,
         handeye_error_m=0.04,
@@ -300,19 +302,33 @@ def test_the_coverage_estimated_beside_the_meshes_is_that_of_the_result(scan):
     def eyes_of(index, X_WC):
         return np.stack([X_WC[:3, 3], (X_WC @ X_CR)[:3, 3]])
 
-    config = replace(NO_SURFACES, surfaces=SurfaceConfig(methods=("tsdf",)))
-    without = reconstruct_views(scan.views, scan.X_FC_nominal, config)
+    # Neither the registration nor the alignment of the hangings is what is tested: pose-only
+    # poses, a coarse TSDF mesh beside the estimate, the two halves aligned from coarse
+    # features and few hypotheses (the scan has one object pose: they align at any setting).
+    config = variant_config(replace(CONFIG, surfaces=SurfaceConfig(methods=("tsdf",))), "pose_only")
+    config = replace(config, surfaces=replace(config.surfaces, tsdf_voxel_size_m=0.004))
+    without = reconstruct_views(scan.views[:4], scan.X_FC_nominal, config)
     assert without.coverage is None and without.hanging_coverage == ()
 
     indices = [v.index for v in scan.views]
     halves = [indices[::2], indices[1::2]]
+    alignment = replace(
+        config.alignment,
+        max_ambiguity=1.0,
+        voxel_m=0.006,
+        coarse_voxel_m=0.015,
+        runs=2,
+        ransac_iterations=2000,
+        coarse_starts_kept=2,
+    )
     result = reconstruct_views(
         scan.views,
         scan.X_FC_nominal,
-        replace(config, alignment=replace(config.alignment, max_ambiguity=1.0)),
+        replace(config, alignment=alignment),
         hangings=halves,
         eyes_of=eyes_of,
     )
+    assert not result.left_out and len(result.alignments) == 1
     eyes = {v.index: eyes_of(v.index, v.X_WC) for v in result.views}
     whole = coverage_estimate(result.fused, list(eyes.values()))
     assert result.coverage == whole and 0.2 < whole.fraction < 1.0
