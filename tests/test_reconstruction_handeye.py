@@ -65,11 +65,22 @@ def test_axxb_rejects_an_outlier_view():
     assert e["handeye_error_mm"] < 0.01 and e["handeye_error_deg"] < 0.001
 
 
+# 10 views by a 480x360 camera (f 495 px: 1 mm pixels at 0.5 m, the filter's voxel): the fits
+# below cost as many views and points, and every figure they are checked against holds there
+# (measured: the joint refinement 0.27 mm here, 0.22 mm from 16 views at 640x480; the coarse
+# stage then the fine fit 0.24 mm here, 0.27 mm there).
+SCAN_SIZE = {
+    "directions": cap_directions(10, ROBOT_SIDE, math.radians(35.0)),
+    "image_size": (480, 360),
+    "focal_px": 495.0,
+}
+
+
 @pytest.fixture(scope="module")
 def bracket_scan():
-    """16 views of the bracket over the RX60's band (35 deg cap), 0.3 mm depth noise, per-view
+    """10 views of the bracket over the RX60's band (35 deg cap), 0.3 mm depth noise, per-view
     flange errors of 0.05 mm / 0.005 deg (joint offsets), nominal X_FC 3 mm / 1 deg off."""
-    scan = make_scan("bracket", directions=cap_directions(16, ROBOT_SIDE, math.radians(35.0)))
+    scan = make_scan("bracket", **SCAN_SIZE)
     roi = RegionOfInterest(center_m=tuple(OBJECT_CENTER_W))
     X_WC_kin = [v.X_WF @ scan.X_FC_nominal for v in scan.views]
     clouds = [
@@ -123,10 +134,7 @@ def rough_mount_scan():
     """The bracket scan with the camera mounted 40 mm / 10 deg off its nominal pose (a
     hand-made mount), clouds cleaned at the nominal poses as a scan would."""
     scan = make_scan(
-        "bracket",
-        directions=cap_directions(16, ROBOT_SIDE, math.radians(35.0)),
-        handeye_error_m=0.04,
-        handeye_error_rad=math.radians(10.0),
+        "bracket", **SCAN_SIZE, handeye_error_m=0.04, handeye_error_rad=math.radians(10.0)
     )
     roi = RegionOfInterest(center_m=tuple(OBJECT_CENTER_W))
     clouds = [
