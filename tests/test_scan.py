@@ -20,6 +20,7 @@ from scanner.configs.scan import ScanConfig, load_scan_config
 from scanner.scan.run import run_scan
 from scanner.scan_dir.captures import CaptureStore
 from tests.in_process import scanner
+from tests.scan_copies import interrupted_copy
 from tests.tiny_scan import TINY_SCAN
 
 
@@ -252,23 +253,8 @@ def test_resume_with_a_config_file_compares_only_its_keys(tmp_path):
     assert resume_request(saved, path).views.radius_m == 0.6
 
 
-def _interrupted_copy(scan_dir: Path, tmp_path: Path) -> Path:
-    """The scan as if it had been interrupted after its first captures."""
-    import shutil
-
-    copy = tmp_path / "interrupted"
-    shutil.copytree(scan_dir, copy)
-    shutil.rmtree(copy / "results")
-    for index in (3, 4):
-        shutil.rmtree(copy / "captures" / f"{index:04d}")
-    manifest = yaml.safe_load((copy / "scan.yaml").read_text())
-    manifest["status"] = "interrupted"
-    (copy / "scan.yaml").write_text(yaml.safe_dump(manifest, sort_keys=False))
-    return copy
-
-
 def test_resume_refuses_a_different_object(tiny_scan, tmp_path):
-    copy = _interrupted_copy(tiny_scan.scan_dir, tmp_path)
+    copy = interrupted_copy(tiny_scan.scan_dir, tmp_path / "interrupted", kept=3)
     with pytest.raises(ScannerError, match="different configuration"):
         run_scan(ScanConfig(object="bracket"), None, resume=copy)
     assert CaptureStore.open(copy).read_manifest()["status"] == "interrupted"
