@@ -26,7 +26,7 @@ from robots.simulation.operator import hung_pose
 from scanner.reports.self_checks import EXIT_SELF_CHECK_FAILED, self_check_record, verdict_line
 from scanner.reports.summary import write_summary
 from tests.partial_clouds import other_stripes, partial_cloud, stripes
-from tests.tiny_scan import TINY_SCAN
+from tests.tiny_scan import TINY_PROCESSING, TINY_SCAN
 
 VOXEL_M = 0.001  # the fused cloud's default voxel
 
@@ -120,24 +120,21 @@ def test_the_verdict_and_summary_name_the_hanging_left_out(tmp_path):
 # The pebble seen by 4 views a hanging: its second hanging does not align with the first
 # (too little overlap for the texture to tell the turn); max_hangings 2 bounds the resume. The
 # tiny scan's camera (320x240), roadmap and coarse surface, and a smaller search for the
-# alignment (2 RANSAC runs, 2 rotation-grid fits kept of each ranking): at full size the
-# hanging fails as surely (its texture correlates 0.00 with the first's at its best fit), and
-# every failed alignment tries all of its hypotheses, twice a scan (the auto decision's quick
-# model and the reconstruction).
+# alignment (2 RANSAC runs, 2 rotation-grid fits kept of each ranking): the hanging fails as
+# surely as with the whole search (the texture at its best fit correlates 0.01 with the
+# first's; 0.00 with the whole search), and every failed alignment tries all its hypotheses,
+# twice a scan (the auto decision's quick model and the reconstruction).
+SURFACES = TINY_PROCESSING["reconstruction"]["surfaces"]
 PEBBLE = {
-    **TINY_SCAN,
+    **{k: TINY_SCAN[k] for k in ("camera", "planner")},
     "object": "pebble",
     "hangings": "auto",
     "max_hangings": 2,
     "views": {**TINY_SCAN["views"], "count": 4},
     "processing": {
-        **TINY_SCAN["processing"],
+        **TINY_PROCESSING,
         "reconstruction": {
-            **TINY_SCAN["processing"]["reconstruction"],
-            "surfaces": {
-                **TINY_SCAN["processing"]["reconstruction"]["surfaces"],
-                "methods": ["poisson"],
-            },
+            "surfaces": {**SURFACES, "methods": ["poisson"]},
             "alignment": {"runs": 2, "coarse_starts_kept": 2},
         },
     },
