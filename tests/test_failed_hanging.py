@@ -49,8 +49,8 @@ def _two_views(points: np.ndarray, colors: np.ndarray, first: int):
 def three_hangings():
     """Hanging 1 and 3 of the textured pebble (3 turned as the simulator turns a hanging), and
     between them a hanging of the same shape with another texture: it cannot verify. A 0.1 m
-    pebble: a third of the points of the 0.2 m one to align, and the same outcomes (hanging 3
-    within 0.06 mm and 0.05 deg, hanging 2 refused for its texture)."""
+    pebble: a quarter of the 0.2 m one's points to align (a third of the time), and the same
+    outcomes (hanging 3 within 0.06 mm and 0.05 deg, hanging 2 refused for its texture)."""
     mesh = resolve_object("pebble", 0.1)
     X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
     X1 = hung_pose(X0, 3, 1)
