@@ -83,9 +83,10 @@ def test_a_rough_mount_is_corrected_or_flagged_from_the_command_line(
     report = json.loads((wide / "report.json").read_text())
     assert report["handeye_converged"] is True and "WARNING" not in r.stdout
     assert report["handeye_error_mm"] < 0.5 and report["handeye_error_deg"] < 0.1
-    # Without the coarse stage the correction cannot get there: it must say so and keep the
-    # nominal-pose cloud. Shown on the tiny scan (5 views, 320x240, its own coarse surfaces),
-    # where the failure costs a tenth of the vase's.
+    # Where the correction cannot get there, it must say so and keep the nominal-pose cloud:
+    # the same rough mount on the tiny scan (5 views at 320x240, its own coarse surfaces),
+    # without the coarse stage (that the coarse stage is what gets there from such a start:
+    # test_reconstruction_pipeline.py, on synthetic views).
     calibration = _rough_mount_calibration(tiny_scan.scan_dir, tmp_path / "rough_tiny.yaml")
     config = {
         **TSDF_ONLY,
