@@ -2,8 +2,9 @@
 images and the device's depth-scale error from the board; a scan with that calibration models
 the object as well as one with an exact device, and better than one without it.
 
-The commands run in the test's process (`tests.in_process`); the scans build the Poisson surface
-alone (the tiny scan's coarse settings): what is compared is the fused cloud."""
+The commands run in the test's process (`tests.in_process`); the scans take 4 views and build the
+Poisson surface alone (the tiny scan's coarse settings): what is compared is the fused cloud
+(measured, mm: exact 0.542, uncorrected 0.934, corrected 0.551, offline 0.555)."""
 
 from __future__ import annotations
 
@@ -58,7 +59,7 @@ def _scan(capfd, root: Path, name: str, depth_scale_error: float, calibration: P
     config = {
         "hangings": 1,
         "sensor": "rgbd",
-        "views": {"count": 6, "candidates": 200, "roll_candidates": 4},
+        "views": {"count": 4, "candidates": 200, "roll_candidates": 4},
         "planner": {"roadmap_milestones": 120, "prm_build_time_s": 20.0},
         "processing": PROCESSING,
         "error_model": {"depth_scale_error": depth_scale_error},
