@@ -13,10 +13,11 @@ polished by one more pose graph with those as priors). One corrected run holds a
 sets (`ViewResult.X_WC_kinematic`, `.X_WC_registered`, `.X_WC`) and the filtered clouds, so
 `build_surfaces` can mesh each variant without filtering and registering again.
 
-The stages are public (`registration.filtering.filter_views`, `registration.all_views.
-register_views`, `correct_handeye`, `build_surfaces`) for a caller that writes files between
-them. No file I/O here: `reconstruction.outputs` writes the files and the plain record of a
-result.
+`reconstruct_views` reads as its steps, each a function of its own: filter
+(`handeye.rounds.filter_step`), register and correct (`handeye.rounds.register_and_correct`),
+the final poses (`final_poses`), the hangings placed in the first one's frame, the surfaces
+(`build_surfaces`, also what a benchmark calls with other pose sets). No file I/O here:
+`reconstruction.outputs` writes the files and the plain record of a result.
 """
 
 from __future__ import annotations
@@ -32,30 +33,25 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.common.stage_timer import StageListener, StageTimer
 from reconstruction.common.transforms import check_pose
 from reconstruction.evaluation.coverage import Coverage, coverage_estimate
-from reconstruction.handeye.basin import coarse_handeye, displacement_at
-from reconstruction.handeye.correction import (
-    HandEyeConfig,
-    HandEyeResult,
-    correct_handeye,
-    plausible_correction,
+from reconstruction.handeye.correction import HandEyeConfig, HandEyeResult
+from reconstruction.handeye.rounds import (
+    CorrectedViews,
+    CorrectionInputs,
+    FilteredViews,
+    filter_step,
+    register_and_correct,
 )
 from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment
-from reconstruction.hangings.merge import group_positions, left_out, place_hangings
-from reconstruction.registration.all_views import EdgeReport, RegisteredViews, register_hangings
+from reconstruction.hangings.merge import PlacedHangings, left_out, place_hangings
+from reconstruction.registration.all_views import EdgeReport
 from reconstruction.registration.filtering import (
     FilterConfig,
     FilterCounts,
     FilteredCloud,
     RemovePoints,
-    filter_views,
     refiltered,
 )
-from reconstruction.registration.incremental import (
-    ArrivingPairs,
-    arrived_pairs,
-    outside_basin,
-    share_holding,
-)
+from reconstruction.registration.incremental import ArrivingPairs
 from reconstruction.registration.pairwise import IcpConfig
 from reconstruction.registration.posegraph import PoseGraphConfig, optimise_pose_graph
 from reconstruction.registration.views import ViewCloud
@@ -206,42 +202,47 @@ def build_surfaces(
     return fused, dict(zip(methods, built, strict=True)), notes
 
 
-def reconstruct_views(
-    views: Sequence[ViewCloud],
-    X_FC_nominal: np.ndarray,
-    config: ReconstructionConfig = ReconstructionConfig(),
-    remove_points: RemovePoints | None = None,
-    hangings: Sequence[Sequence[int]] | None = None,
-    filtered: Mapping[int, FilteredCloud] | None = None,
-    on_stage: StageListener | None = None,
-    eyes_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
-    fixtures: Sequence[FixtureLine] = (),
-    arriving: ArrivingPairs | None = None,
-    leave_out_unaligned: bool = False,
-) -> ReconstructionResult:
-    """The whole reconstruction on in-memory views (see the module docstring).
+@dataclass(frozen=True, eq=False, kw_only=True)
+class ReconstructionInputs:
+    """What one reconstruction works on.
 
-    Args:
-        views: one cloud per capture, in its camera frame C, with the flange pose X_WF.
-        X_FC_nominal: the hand-eye transform the software believes (4x4, metres).
-        config: every stage's settings (filter, ICP, pose graph, hand-eye, hangings, surfaces).
-        remove_points: the caller's filter of points on the robot and cell (robots/ provides
-            one from the Drake geometry; None keeps every point).
-        hangings: the capture indices of each pass of a multi-hanging scan (None: one pass);
-            the passes are aligned into the first one's frame.
-        filtered: clouds of views already filtered at the kinematic pose with these settings
-            (the filter stage skips them).
-        on_stage: hears each stage start and end (a progress display).
-        eyes_of: `eyes_of(index, X_WC)`, a view's camera centres in W (a stereo rig: both
-            eyes, as `coverage_estimate` takes them); given, the coverage is estimated while
-            the meshes are built.
-        fixtures: the line of the rod each hanging hung from, in its own frame (one for all
-            hangings, or one per hanging); the model is guarded against a strip along it.
-        arriving: the pairs registered while the views arrived (the view stream), used when
-            they are this run's first views with these clouds, X_FC and ICP settings.
-        leave_out_unaligned: a hanging whose alignment fails its verification is left out of
-            the model (its views in no result but the coverage per hanging, its alignment
-            recorded unverified) instead of refusing the whole result.
+    views: one cloud per capture, in its camera frame C, with the flange pose X_WF.
+    X_FC_nominal: the hand-eye transform the software believes (4x4, metres).
+    config: every stage's settings (filter, ICP, pose graph, hand-eye, hangings, surfaces).
+    remove_points: the caller's filter of points on the robot and cell (robots/ provides one
+        from the Drake geometry; None keeps every point).
+    hangings: the capture indices of each pass of a multi-hanging scan (None: one pass); the
+        passes are aligned into the first one's frame.
+    filtered: clouds of views already filtered at the kinematic pose with these settings (the
+        filter stage skips them).
+    eyes_of: `eyes_of(index, X_WC)`, a view's camera centres in W (a stereo rig: both eyes, as
+        `coverage_estimate` takes them); given, the coverage is estimated while the meshes are
+        built.
+    fixtures: the line of the rod each hanging hung from, in its own frame (one for all
+        hangings, or one per hanging); the model is guarded against a strip along it.
+    arriving: the pairs registered while the views arrived (the view stream), used when they
+        are this run's first views with these clouds, X_FC and ICP settings.
+    leave_out_unaligned: a hanging whose alignment fails its verification is left out of the
+        model (its views in no result but the coverage per hanging, its alignment recorded
+        unverified) instead of refusing the whole result."""
+
+    views: Sequence[ViewCloud]
+    X_FC_nominal: np.ndarray
+    config: ReconstructionConfig = field(default_factory=ReconstructionConfig)
+    remove_points: RemovePoints | None = None
+    hangings: Sequence[Sequence[int]] | None = None
+    filtered: Mapping[int, FilteredCloud] | None = None
+    eyes_of: Callable[[int, np.ndarray], np.ndarray] | None = None
+    fixtures: Sequence[FixtureLine] = ()
+    arriving: ArrivingPairs | None = None
+    leave_out_unaligned: bool = False
+
+
+def reconstruct_views(
+    inputs: ReconstructionInputs, on_stage: StageListener | None = None
+) -> ReconstructionResult:
+    """The whole reconstruction on in-memory views (see the module docstring); `on_stage`
+    hears each stage start and end (a progress display).
 
     Returns:
         The views' poses (kinematic, registered, final), the registration edges, the X_FC used
@@ -251,143 +252,130 @@ def reconstruct_views(
     Raises:
         ScannerError: fewer usable views than `config.min_views`, or (RefusedResultError) a
             hanging whose alignment fails its verification, unless `leave_out_unaligned`."""
-    X_FC_nominal = check_pose(X_FC_nominal, "X_FC_nominal")
-    indices = [v.index for v in views]
+    X_FC_nominal = check_pose(inputs.X_FC_nominal, "X_FC_nominal")
+    indices = [v.index for v in inputs.views]
     if len(set(indices)) != len(indices):
         raise ScannerError("views: capture indices must be unique")
+    config = inputs.config
     timer = StageTimer(on_stage=on_stage)
-    notes: list[str] = []
     if any(m.startswith("poisson") for m in config.surfaces.methods):
         start_solver()  # its imports run while the views are registered
+    correction = CorrectionInputs(
+        views=list(inputs.views),
+        X_FC_nominal=X_FC_nominal,
+        filter=config.filter,
+        icp=config.icp,
+        pose_graph=config.pose_graph,
+        handeye=config.handeye,
+        min_views=config.min_views,
+        remove_points=inputs.remove_points,
+        hangings=inputs.hangings,
+        arriving=inputs.arriving,
+    )
+    first = filter_step(correction, X_FC_nominal, timer, inputs.filtered)
+    corrected = register_and_correct(correction, first, timer)
+    final = final_poses(corrected, X_FC_nominal, config, timer)
+    placed = _place_hangings(inputs, corrected.filtered, final, timer)
+    return _surfaces(inputs, X_FC_nominal, corrected, final, placed, timer)
 
-    all_views = list(views)
-    with timer("filter"):
-        views, clouds, skipped = filter_views(
-            all_views, X_FC_nominal, config.filter, remove_points, filtered
-        )
-    _require_views(views, skipped, config)
-    groups = group_positions(views, hangings or [[v.index for v in views]])
-    coarse = None
-    X_FC_start = X_FC_nominal
-    X_FC_filtered = X_FC_nominal  # the X_FC the clouds were cropped and cleaned with
-    pairing = (config.icp.enabled or config.handeye.enabled) and len(views) >= 2
-    holding, streamed = None, len(arriving.pairs()) if arriving is not None else 0
-    if pairing:
-        with timer("icp"):
-            # Offline, or views the scan did not stream: pairwise ICP as if they arrived now.
-            given, arriving = (
-                arriving,
-                arrived_pairs(arriving, views, clouds, groups, X_FC_filtered, config.icp),
-            )
-        holding, streamed = share_holding(arriving), streamed if arriving is given else 0
-    if (
-        config.handeye.enabled
-        and config.handeye.coarse.enabled
-        and len(views) >= 3
-        and (holding is None or holding < config.handeye.coarse.skip_when_pairs_hold)
-    ):
-        with timer("handeye_coarse"):
-            coarse = coarse_handeye(
-                clouds,
-                [v.X_WF for v in views],
-                groups,
-                X_FC_nominal,
-                config.handeye.coarse,
-                config.handeye.seed,
-            )
-        if coarse is not None and plausible_correction(coarse.X_FC, X_FC_nominal, config.handeye):
-            X_FC_start = coarse.X_FC
-    registered = RegisteredViews((), None, (), ())
-    handeye = None
-    X_FC = X_FC_nominal
-    # Registration (ICP from X_WF @ X_FC) and the correction of X_FC feed each other: when the
-    # correction moves X_FC, ICP ran from stale poses (and the AX = XB check compares with
-    # them), so register again from the corrected X_FC until it stops moving.
-    for _ in range(max(config.handeye.max_rounds, 1)):
-        distance_m = _working_distance_m(clouds)
-        moved = displacement_at(X_FC_filtered, X_FC_start, distance_m)
-        if moved > config.handeye.coarse.refilter_above_m:
-            # The crop and the robot's points are placed in W: redo them at the new poses.
-            with timer("filter"):
-                views, clouds, skipped = filter_views(
-                    all_views, X_FC_start, config.filter, remove_points
-                )
-            _require_views(views, skipped, config)
-            groups = group_positions(views, hangings or [[v.index for v in views]])
-            X_FC_filtered = X_FC_start
-            if pairing:
-                with timer("icp"):
-                    arriving = arrived_pairs(None, views, clouds, groups, X_FC_start, config.icp)
-        X_WF = [v.X_WF for v in views]
-        X_WC_start = [X @ X_FC_start for X in X_WF]
-        if (config.icp.enabled or config.handeye.enabled) and len(views) >= 2:
-            indices = [v.index for v in views]
-            registered = register_hangings(
-                X_WC_start, indices, groups, config.icp, config.pose_graph, timer, arriving
-            )
-        X_WC = list(registered.X_WC) if registered.X_WC is not None else X_WC_start
-        if not (config.handeye.enabled and len(views) >= 2):
-            break
-        with timer("handeye"):
-            handeye = correct_handeye(
-                clouds,
-                X_WF,
-                registered.X_WC,
-                registered.pairs,
-                X_FC_nominal,
-                config.handeye,
-                coarse,
-                X_FC_start,
-            )
-        X_FC = handeye.X_FC
-        kept = {(indices[e.source], indices[e.target]) for e in registered.kept_edges}
-        if displacement_at(X_FC_start, X_FC, distance_m) <= config.handeye.round_tolerance_m or (
-            config.icp.enabled
-            and not outside_basin(arriving, kept, indices, [X @ X_FC for X in X_WF])
-        ):
-            # From the corrected mount ICP would end where it ended on every kept pair: the
-            # same edges, the same correction.
-            break
-        X_FC_start = X_FC
-    X_WC_kin = [X @ X_FC_nominal for X in X_WF]
+
+@dataclass(frozen=True, eq=False)
+class FinalPoses:
+    """Every view's camera pose: kinematic (nominal X_FC) and final (the corrected X_FC, or
+    the registration's without a correction), each in its own hanging's frame; notes."""
+
+    X_WC_kinematic: list[np.ndarray]
+    X_WC: list[np.ndarray]
+    notes: list[str]
+
+
+def final_poses(
+    corrected: CorrectedViews,
+    X_FC_nominal: np.ndarray,
+    config: ReconstructionConfig,
+    timer: StageTimer,
+) -> FinalPoses:
+    """The poses the model is built from: X_WF @ X_FC with the corrected X_FC (polished by one
+    more pose graph when `final_pose_graph`), else where registration left them."""
+    views, registered = corrected.filtered.views, corrected.registered
+    X_WF = [v.X_WF for v in views]
+    notes: list[str] = []
+    X_WC = corrected.X_WC
     if (config.icp.enabled or config.handeye.enabled) and len(views) >= 2 and not registered.pairs:
         notes.append("no overlapping view pairs: registration and correction skipped")
-    if handeye is not None:
-        notes += handeye.notes
-        X_WC = [X @ X_FC for X in X_WF]
+    if corrected.handeye is not None:
+        notes += corrected.handeye.notes
+        X_WC = [X @ corrected.X_FC for X in X_WF]
         if config.final_pose_graph and registered.kept_edges:
             with timer("pose_graph"):
                 graph = optimise_pose_graph(X_WC, registered.kept_edges, config.pose_graph)
             X_WC = list(graph.X_WC)
+    return FinalPoses([X @ X_FC_nominal for X in X_WF], X_WC, notes)
 
-    if remove_points is not None:
+
+@dataclass(frozen=True, eq=False)
+class _Placed:
+    """The views' clouds filtered once more at their final poses, and the hangings placed in
+    the first one's frame."""
+
+    clouds: list[FilteredCloud]
+    hangings: PlacedHangings
+
+
+def _place_hangings(
+    inputs: ReconstructionInputs, filtered: FilteredViews, final: FinalPoses, timer: StageTimer
+) -> _Placed:
+    clouds = filtered.clouds
+    if inputs.remove_points is not None:
         # The rod and the robot once more, each view at its final pose in its hanging's frame.
         with timer("filter"):
-            clouds = [refiltered(c, X, remove_points) for c, X in zip(clouds, X_WC)]
-    voxel_m = config.surfaces.fused_voxel_size_m
-    with timer("align") if len(groups) > 1 else nullcontext():
+            clouds = [refiltered(c, X, inputs.remove_points) for c, X in zip(clouds, final.X_WC)]
+    with timer("align") if len(filtered.groups) > 1 else nullcontext():
         placed = place_hangings(
-            views,
+            filtered.views,
             clouds,
-            X_WC,
-            groups,
-            config.alignment,
-            voxel_m,
-            fixtures,
-            remove_points,
-            leave_out_unaligned,
+            final.X_WC,
+            filtered.groups,
+            inputs.config.alignment,
+            inputs.config.surfaces.fused_voxel_size_m,
+            inputs.fixtures,
+            inputs.remove_points,
+            inputs.leave_out_unaligned,
         )
-    X_WC, alignments, kept = placed.X_WC, placed.alignments, placed.kept
-    hanging_of = {k: h for h, group in enumerate(groups) for k in group}
-    if len(groups) - len(left_out(alignments)) > 1 and "poisson" in config.surfaces.methods:
-        # Hangings together surround the object: its closed model comes from the same solve.
+    return _Placed(clouds, placed)
+
+
+def _surface_config(
+    config: ReconstructionConfig, groups: Sequence[Sequence[int]], placed: PlacedHangings
+) -> ReconstructionConfig:
+    """Hangings that together surround the object (two or more in the model) also give its
+    closed model, from the same solve."""
+    if len(groups) - len(left_out(placed.alignments)) > 1 and "poisson" in config.surfaces.methods:
         methods = tuple(dict.fromkeys((*config.surfaces.methods, "poisson_closed")))
-        config = replace(config, surfaces=replace(config.surfaces, methods=methods))
+        return replace(config, surfaces=replace(config.surfaces, methods=methods))
+    return config
+
+
+def _surfaces(
+    inputs: ReconstructionInputs,
+    X_FC_nominal: np.ndarray,
+    corrected: CorrectedViews,
+    final: FinalPoses,
+    placed: _Placed,
+    timer: StageTimer,
+) -> ReconstructionResult:
+    """The fused cloud and the meshes from the kept views at their placed poses (with the
+    coverage estimated beside them), and the result."""
+    views, groups = corrected.filtered.views, corrected.filtered.groups
+    clouds, hangings = placed.clouds, placed.hangings
+    X_WC, kept = hangings.X_WC, hangings.kept
+    config = _surface_config(inputs.config, groups, hangings)
+    voxel_m = config.surfaces.fused_voxel_size_m
     coverage: list[Coverage] = []
 
     def estimate_coverage(fused: FusedCloud) -> None:
         with timer("coverage"):
-            eyes = [eyes_of(v.index, X) for v, X in zip(views, X_WC)]
+            eyes = [inputs.eyes_of(v.index, X) for v, X in zip(views, X_WC)]
             coverage.append(coverage_estimate(fused, [eyes[k] for k in kept]))
             for group in map(sorted, groups if len(groups) > 1 else ()):
                 alone = fuse_clouds([clouds[k] for k in group], [X_WC[k] for k in group], voxel_m)
@@ -398,21 +386,24 @@ def reconstruct_views(
         [clouds[k] for k in kept],
         [X_WC[k] for k in kept],
         config,
-        placed.remove_points,
+        hangings.remove_points,
         timer,
-        estimate_coverage if eyes_of is not None else None,
-        placed.fixtures,
+        estimate_coverage if inputs.eyes_of is not None else None,
+        hangings.fixtures,
     )
     fused_nominal = None
+    handeye = corrected.handeye
     if handeye is not None and not handeye.diagnosis.converged:
         # Nothing is lost: the model at the nominal poses stays beside the doubtful one.
-        fused_nominal = fuse_clouds([clouds[k] for k in kept], [X_WC_kin[k] for k in kept], voxel_m)
-    notes += surface_notes
+        X_kin = final.X_WC_kinematic
+        fused_nominal = fuse_clouds([clouds[k] for k in kept], [X_kin[k] for k in kept], voxel_m)
+    hanging_of = {k: h for h, group in enumerate(groups) for k in group}
+    registered = corrected.registered
     view_results = tuple(
         ViewResult(
             views[k].index,
             clouds[k].counts,
-            X_WC_kin[k],
+            final.X_WC_kinematic[k],
             None if registered.X_WC is None else registered.X_WC[k],
             X_WC[k],
             hanging_of[k],
@@ -423,29 +414,17 @@ def reconstruct_views(
         views=view_results,
         edges=registered.report,
         X_FC_nominal=X_FC_nominal,
-        X_FC=X_FC,
+        X_FC=corrected.X_FC,
         handeye=handeye,
         fused=fused,
         meshes=meshes,
         timings_s=timer.seconds,
-        skipped_views=tuple(skipped),
-        notes=tuple(notes),
+        skipped_views=tuple(corrected.filtered.skipped),
+        notes=tuple([*final.notes, *surface_notes]),
         clouds=tuple(clouds[k] for k in kept),
-        alignments=alignments,
+        alignments=hangings.alignments,
         fused_nominal=fused_nominal,
         coverage=coverage[0] if coverage else None,
         hanging_coverage=tuple(coverage[1:]),
-        pairs_before=streamed,
+        pairs_before=corrected.pairs_before,
     )
-
-
-def _require_views(views, skipped, config: ReconstructionConfig) -> None:
-    if len(views) < config.min_views:
-        raise ScannerError(
-            f"only {len(views)} usable view(s) after filtering, {config.min_views} needed "
-            f"(skipped: {', '.join(f'{i}: {why}' for i, why in skipped) or 'none'})"
-        )
-
-
-def _working_distance_m(clouds: Sequence[FilteredCloud]) -> float:
-    return float(np.mean([np.median(c.points_C[:, 2]) for c in clouds if len(c)]))

@@ -48,7 +48,7 @@ from peer_pipeline import PeerConfig, peer_reconstruct, peer_views, pose_change,
 from reconstruction.common.transforms import invert, transform_points
 from reconstruction.evaluation.metrics import TriangleSurface, evaluate_surface, handeye_error
 from reconstruction.evaluation.reference_alignment import align_reference
-from reconstruction.pipeline import reconstruct_views
+from reconstruction.pipeline import ReconstructionInputs, reconstruct_views
 from reconstruction.registration.filtering import filter_views
 from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.reconstruct.evaluation import observed_samples, to_first_hanging, truth_metrics
@@ -108,17 +108,15 @@ def run_product(scan: SavedScan, gathered: Gathered, times: dict):
     processing = scan.config.processing
     config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
     with measured(times, "product"):
-        result = reconstruct_views(
-            gathered.views,
-            scan.X_FC_nominal,
-            config,
-            gathered.remove,
-            None,
-            None,
-            None,
-            lambda index, X_WC: scan.camera_model.eye_centres_W(X_WC),
-            gathered.fixtures,
+        inputs = ReconstructionInputs(
+            views=gathered.views,
+            X_FC_nominal=scan.X_FC_nominal,
+            config=config,
+            remove_points=gathered.remove,
+            eyes_of=lambda index, X_WC: scan.camera_model.eye_centres_W(X_WC),
+            fixtures=gathered.fixtures,
         )
+        result = reconstruct_views(inputs)
     return result
 
 

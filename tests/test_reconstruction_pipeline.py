@@ -17,7 +17,12 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import pose_difference, transform_points
 from reconstruction.evaluation.metrics import TriangleSurface, evaluate_surface, handeye_error
 from reconstruction.outputs import save_outputs, summary
-from reconstruction.pipeline import ReconstructionConfig, reconstruct_views, variant_config
+from reconstruction.pipeline import (
+    ReconstructionConfig,
+    ReconstructionInputs,
+    reconstruct_views,
+    variant_config,
+)
 from reconstruction.registration.filtering import FilterConfig, RegionOfInterest
 from reconstruction.registration.pairwise import IcpConfig
 from reconstruction.registration.views import ViewCloud
@@ -32,6 +37,13 @@ CONFIG = ReconstructionConfig(
     surfaces=SurfaceConfig(methods=("poisson", "tsdf"), poisson_depth=7),
 )
 NO_SURFACES = replace(CONFIG, surfaces=SurfaceConfig(methods=()))
+
+
+def _reconstruct(views, X_FC_nominal, config, **inputs):
+    """`reconstruct_views` on one input record, as the reconstruction command builds it."""
+    return reconstruct_views(
+        ReconstructionInputs(views=views, X_FC_nominal=X_FC_nominal, config=config, **inputs)
+    )
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +61,7 @@ def scan():
 
 @pytest.fixture(scope="module")
 def corrected(scan):
-    return reconstruct_views(scan.views, scan.X_FC_nominal, CONFIG)
+    return _reconstruct(scan.views, scan.X_FC_nominal, CONFIG)
 
 
 def _pose_set_metrics(scan, poses) -> dict:
@@ -125,7 +137,7 @@ def test_meshes_and_timings(scan, corrected):
 
 
 def test_variants_switch_the_stages(scan, corrected):
-    pose_only = reconstruct_views(
+    pose_only = _reconstruct(
         scan.views[:4], scan.X_FC_nominal, variant_config(NO_SURFACES, "pose_only")
     )
     assert pose_only.handeye is None and pose_only.edges == ()
@@ -140,8 +152,8 @@ def test_variants_switch_the_stages(scan, corrected):
 
 def test_second_run_gives_the_same_result(scan):
     views = scan.views[:4]
-    a = reconstruct_views(views, scan.X_FC_nominal, NO_SURFACES)
-    b = reconstruct_views(views, scan.X_FC_nominal, NO_SURFACES)
+    a = _reconstruct(views, scan.X_FC_nominal, NO_SURFACES)
+    b = _reconstruct(views, scan.X_FC_nominal, NO_SURFACES)
     # Same decisions, same numbers to the last few bits: Open3D sums ICP normal equations over
     # threads in varying order (differences of ~1e-13 seen), so "the same" means to 1 nm.
     assert [e.status for e in a.edges] == [e.status for e in b.edges]
@@ -160,7 +172,7 @@ def test_remove_points_hook_reaches_clouds_and_depth_maps(scan):
         return points_W[:, 2] < OBJECT_CENTER_W[2]
 
     cfg = variant_config(replace(CONFIG, surfaces=SurfaceConfig(methods=("tsdf",))), "pose_only")
-    result = reconstruct_views(scan.views[:4], scan.X_FC_nominal, cfg, remove_points=drop_top)
+    result = _reconstruct(scan.views[:4], scan.X_FC_nominal, cfg, remove_points=drop_top)
     assert set(calls) == {v.index for v in scan.views[:4]}
     assert result.fused.points_W[:, 2].max() < OBJECT_CENTER_W[2]
     # The TSDF surface may reach half its truncation band past the cut, not more.
@@ -169,16 +181,16 @@ def test_remove_points_hook_reaches_clouds_and_depth_maps(scan):
 
 def test_empty_view_is_skipped_and_reported(scan):
     empty = ViewCloud(99, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), scan.views[0].X_WF)
-    result = reconstruct_views([*scan.views[:3], empty], scan.X_FC_nominal, NO_SURFACES)
+    result = _reconstruct([*scan.views[:3], empty], scan.X_FC_nominal, NO_SURFACES)
     assert [i for i, _ in result.skipped_views] == [99]
     assert len(result.views) == 3
 
 
 def test_bad_input_is_a_user_error(scan):
     with pytest.raises(ScannerError, match="unique"):
-        reconstruct_views([scan.views[0], scan.views[0]], scan.X_FC_nominal, NO_SURFACES)
+        _reconstruct([scan.views[0], scan.views[0]], scan.X_FC_nominal, NO_SURFACES)
     with pytest.raises(ScannerError, match="usable view"):
-        reconstruct_views(scan.views[:1], scan.X_FC_nominal, NO_SURFACES)
+        _reconstruct(scan.views[:1], scan.X_FC_nominal, NO_SURFACES)
     with pytest.raises(ScannerError, match="X_WF"):
         ViewCloud(0, np.zeros((1, 3)), np.zeros((1, 3), np.uint8), np.full((4, 4), np.nan))
 
@@ -205,9 +217,7 @@ def test_reconstruction_does_not_import_drake_or_other_packages():
 
 def test_final_pose_graph_polishes_the_corrected_poses(scan):
     views = scan.views[:4]
-    result = reconstruct_views(
-        views, scan.X_FC_nominal, replace(NO_SURFACES, final_pose_graph=True)
-    )
+    result = _reconstruct(views, scan.X_FC_nominal, replace(NO_SURFACES, final_pose_graph=True))
     # It may move each view by what no shared X_FC explains (joint offsets: ~0.1 mm), not more.
     for v, view in zip(result.views, views):
         moved_m, turned_rad = pose_difference(v.X_WC, view.X_WF @ result.X_FC)
@@ -265,7 +275,7 @@ def rough_scan():
 
 
 def test_a_rough_mount_is_corrected_and_reported_converged(rough_scan, tmp_path):
-    result = reconstruct_views(rough_scan.views, rough_scan.X_FC_nominal, NO_SURFACES)
+    result = _reconstruct(rough_scan.views, rough_scan.X_FC_nominal, NO_SURFACES)
     after = handeye_error(result.X_FC, rough_scan.X_FC_true)
     assert after["handeye_error_mm"] < 0.5 and after["handeye_error_deg"] < 0.1
     assert result.handeye.source == "refined" and result.handeye.coarse is not None
@@ -279,7 +289,7 @@ def test_without_the_coarse_stage_the_failure_is_reported_and_the_nominal_model_
 ):
     handeye = replace(CONFIG.handeye, coarse=replace(CONFIG.handeye.coarse, enabled=False))
     config = replace(NO_SURFACES, handeye=handeye)
-    result = reconstruct_views(rough_scan.views, rough_scan.X_FC_nominal, config)
+    result = _reconstruct(rough_scan.views, rough_scan.X_FC_nominal, config)
     after = handeye_error(result.X_FC, rough_scan.X_FC_true)
     assert after["handeye_error_mm"] > 2.0  # the premise: the old path does not get there
     assert not result.handeye.diagnosis.converged
@@ -307,7 +317,7 @@ def test_the_coverage_estimated_beside_the_meshes_is_that_of_the_result(scan):
     # features and few hypotheses (the scan has one object pose: they align at any setting).
     config = variant_config(replace(CONFIG, surfaces=SurfaceConfig(methods=("tsdf",))), "pose_only")
     config = replace(config, surfaces=replace(config.surfaces, tsdf_voxel_size_m=0.004))
-    without = reconstruct_views(scan.views[:4], scan.X_FC_nominal, config)
+    without = _reconstruct(scan.views[:4], scan.X_FC_nominal, config)
     assert without.coverage is None and without.hanging_coverage == ()
 
     indices = [v.index for v in scan.views]
@@ -321,7 +331,7 @@ def test_the_coverage_estimated_beside_the_meshes_is_that_of_the_result(scan):
         ransac_iterations=2000,
         coarse_starts_kept=2,
     )
-    result = reconstruct_views(
+    result = _reconstruct(
         scan.views,
         scan.X_FC_nominal,
         replace(config, alignment=alignment),

@@ -30,7 +30,7 @@ from reconstruction.common.stage_timer import StageTimer, cpu_seconds
 from reconstruction.common.yaml_files import yaml_text
 from reconstruction.depth.camera_model import sensor_words
 from reconstruction.outputs import export_files, save_outputs, summary
-from reconstruction.pipeline import ReconstructionResult, reconstruct_views
+from reconstruction.pipeline import ReconstructionInputs, ReconstructionResult, reconstruct_views
 from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.surfaces.export import export_record, prepare_exports
 from reconstruction.surfaces.topology import mesh_quality
@@ -267,19 +267,19 @@ def _reconstruct(
     # Nothing of the evaluation runs beside the model's stages: it would take the cores the
     # Poisson solve and the hand-eye fit wait for.
     with timer("reconstruct"):
-        result = reconstruct_views(
-            views.views,
-            X_FC,
-            config,
-            views.remove,
-            hangings,
-            filtered,
-            on_stage,
-            eyes_of,
-            views.fixtures,
-            arriving,
+        inputs = ReconstructionInputs(
+            views=views.views,
+            X_FC_nominal=X_FC,
+            config=config,
+            remove_points=views.remove,
+            hangings=hangings,
+            filtered=filtered,
+            eyes_of=eyes_of,
+            fixtures=views.fixtures,
+            arriving=arriving,
             leave_out_unaligned=len(scans) == 1,
         )
+        result = reconstruct_views(inputs, on_stage)
 
     report: dict = {
         "sensor": sensor_words(stereo or first.camera_model),

@@ -21,7 +21,7 @@ from reconstruction.common.transforms import invert, rotate_vectors, transform_p
 from reconstruction.evaluation.coverage import SeenSurface, seen_surface
 from reconstruction.evaluation.metrics import SurfaceSamples, TriangleSurface
 from reconstruction.hangings.alignment import SeenSpace, align_pass
-from reconstruction.pipeline import reconstruct_views
+from reconstruction.pipeline import ReconstructionInputs, reconstruct_views
 from reconstruction.registration.filtering import filter_views, o3d_cloud, refiltered
 from reconstruction.surfaces.fixture import without_fixture
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds
@@ -105,11 +105,13 @@ class HangingAssessor:
             # nominal one each view is up to a centimetre off, which blurs a quick model too
             # much to align the next hanging onto it.
             corrected = reconstruct_views(
-                views,
-                self.scan.X_FC_nominal,
-                replace(config, surfaces=replace(config.surfaces, methods=())),
-                remove,
-                filtered={c.index: c for c in clouds},
+                ReconstructionInputs(
+                    views=views,
+                    X_FC_nominal=self.scan.X_FC_nominal,
+                    config=replace(config, surfaces=replace(config.surfaces, methods=())),
+                    remove_points=remove,
+                    filtered={c.index: c for c in clouds},
+                )
             )
             self.X_FC = corrected.X_FC
         X_WC = [v.X_WF @ self.X_FC for v in views]
