@@ -85,9 +85,11 @@ def test_robot_offsets_are_recovered_where_observable_and_predict_better(seeds):
     """Encoder offsets of 0.01 deg per joint (the default error model): joints 2-5 are
     recovered within 0.005 deg, joints 1 and 6 are named as unobservable with the reason,
     held-out prediction improves, X_FC comes closer to the truth (without: the offsets'
-    effect is spread into X_FC). One seed; seeds 0-9 are bench_calibration_sigma.py's
-    (`encoder_offsets_only.robot_offsets`)."""
+    effect is spread into X_FC). One seed, the first 8 stations (as the rendered 8-station
+    run of test_calibration_outputs.py); seeds 0-9 on all 20 stations are
+    bench_calibration_sigma.py's (`encoder_offsets_only.robot_offsets`)."""
     observations, X_FC_true, offsets_true = seeds[0]
+    observations = observations[:8]
     plain = calibrate_hand_eye(CONFIG.board, observations, STEREO)
     he = calibrate_hand_eye(CONFIG.board, observations, STEREO, arm=arm_model(), robot_offsets=True)
     e = he.robot_errors
@@ -97,7 +99,7 @@ def test_robot_offsets_are_recovered_where_observable_and_predict_better(seeds):
     assert "about the base axis" in e.not_observable[0]
     assert "about its own axis" in e.not_observable[5]
     error_deg = np.degrees(np.abs(e.params[joints] - offsets_true[joints]))
-    assert np.all(error_deg < 0.005), error_deg  # measured: below 0.0005 deg
+    assert np.all(error_deg < 0.005), error_deg  # measured: 0.0006 deg (20 stations: 0.0005)
     assert e.held_out_px_with < e.held_out_px_without
     assert pose_difference(he.X_FC, X_FC_true)[0] < pose_difference(plain.X_FC, X_FC_true)[0]
     assert "kept: held-out prediction" in e.note
