@@ -294,16 +294,17 @@ def test_calibrate_over_the_wire(tmp_path, capfd, run_dir):
     assert report["poses_used"] == SMALL.stations.count and report["stations_skipped"] == []
     simulated = small(run_dir)
     # The arm stood where the simulated arm did (float32 on the wire: within 1e-6 rad) and the
-    # camera saw what the simulated one saw there: the same X_FC to image noise.
+    # camera saw what the simulated one saw there: the same X_FC but for what such tiny image
+    # differences move it (measured 0.02 mm / 0.002 deg; the nominal mount is 3 mm / 1 deg off).
     wire_q, simulated_q = capture_joints(tmp_path / "cal"), capture_joints(simulated.out_dir)
     assert sorted(wire_q) == sorted(simulated_q)
     for station, q in wire_q.items():
         assert np.abs(q - simulated_q[station]).max() < 1e-5
     X_FC = load_calibration(tmp_path / "cal" / "results" / "calibration.yaml").X_FC
     dt, dr = pose_difference(X_FC, simulated.solution.hand_eye.X_FC)
-    assert dt < 0.05e-3 and dr < np.radians(0.01), (dt, dr)
+    assert dt < 0.1e-3 and dr < np.radians(0.02), (dt, dr)
     assert report["truth"]["handeye_error_mm"] == pytest.approx(
-        simulated.report["truth"]["handeye_error_mm"], abs=0.05
+        simulated.report["truth"]["handeye_error_mm"], abs=0.1
     )
 
 
