@@ -1,11 +1,12 @@
 """Eye-in-hand and eye-to-hand calibration in the simulator, against the simulator's truth.
 
-The accuracy checks read the shared 8-station run at the product's full resolution (1280x960):
-at 640x480 the focal length came out 0.5 % off (corner precision halves, the board covers fewer
-pixels) and the hand-eye translation 2-3 mm, so a reduced resolution would not test the product.
-The default 20 stations and the default eye-to-hand set-up are scripts/bench_calibration.py's.
-How a run is driven (a hardware driver, resume) is checked on the small half-resolution run:
-the same result whichever way the same stations were visited.
+The accuracy checks read the shared 8-station run at the product's full resolution (1280x960,
+tests/calibration_runs.py): at 640x480 the focal length came out 0.5-0.8 % off (corner precision
+halves, the board covers fewer pixels) and the hand-eye translation 2-3.3 mm, so a reduced
+resolution would not test the product's accuracy. The default 20 stations and the default
+eye-to-hand set-up are scripts/bench_calibration.py's. How a run is driven (a hardware driver,
+resume) is checked on the small half-resolution run: the same result whichever way the same
+stations were visited.
 """
 
 import math
