@@ -18,9 +18,11 @@ import yaml
 
 from reconstruction.calibration.file import load_calibration
 from reconstruction.common.errors import StorageError
+from reconstruction.pipeline import variant_config
 from scanner.configs.scan import load_scan_config
 from scanner.scan.run import run_scan
 from scanner.scan_dir.captures import CaptureStore
+from scanner.scan_dir.manifest import open_scan
 from tests.conftest import shared_data
 from tests.in_process import scanner
 from tests.tiny_scan import TINY_SCAN
@@ -187,6 +189,15 @@ def test_full_disk_while_writing_results_leaves_no_results(tiny_scan_dir, tmp_pa
 
     monkeypatch.setattr(scanner.reconstruct.stages, "save_outputs", no_space)
     out = tmp_path / "rec"
+    # The writing fails, whatever was registered and meshed: pose-only, the TSDF mesh alone.
+    processing = open_scan(tiny_scan_dir).config.processing
+    reconstruction = variant_config(processing.reconstruction, "pose_only")
+    surfaces = replace(reconstruction.surfaces, methods=("tsdf",))
+    processing = replace(
+        processing,
+        reconstruction=replace(reconstruction, surfaces=surfaces),
+        primary_surface="tsdf",
+    )
     with pytest.raises(StorageError, match="no space left on the device"):
-        scanner.reconstruct.stages.run_reconstruct(tiny_scan_dir, results_dir=out)
+        scanner.reconstruct.stages.run_reconstruct(tiny_scan_dir, processing, out)
     assert not out.exists() and not list(tmp_path.glob(".rec.*"))
