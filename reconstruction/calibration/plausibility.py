@@ -8,7 +8,6 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from reconstruction.calibration.eye_in_hand import HandEyeCalibration, board_scatter
-from reconstruction.calibration.file import Calibration
 from reconstruction.calibration.hand_eye import solve_every_method
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.errors import RefusedResultError
@@ -55,7 +54,8 @@ def implausible_rig(
 
 
 def implausible_calibration(
-    calibration: Calibration, settings: CalibrationSettings | None = None
+    calibration: Calibration,  # noqa: F821 (calibration.file imports this module)
+    settings: CalibrationSettings | None = None,
 ) -> list[str]:
     """What a calibration file holds beyond the limits a computed calibration is refused at:
     its rig, and its reprojection RMS when it was measured."""
@@ -69,7 +69,11 @@ def implausible_calibration(
     return problems + implausible_rig(calibration.X_FC, calibration.stereo, settings)
 
 
-def require_plausible(calibration: Calibration, where: str, causes: str) -> None:
+def require_plausible(
+    calibration: Calibration,  # noqa: F821 (calibration.file imports this module)
+    where: str,
+    causes: str,
+) -> None:
     """RefusedResultError (exit 3) naming `where` when `calibration` is implausible; `causes`
     says what likely went wrong."""
     problems = implausible_calibration(calibration)
