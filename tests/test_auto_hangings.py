@@ -142,9 +142,15 @@ def test_an_auto_scan_asks_for_a_second_hanging_and_the_operator_follows_it(
     from scanner.scan.world import ScanWorld
     from tests.tiny_scan import HALF_RESOLUTION, TINY_PROCESSING, TINY_SCAN
 
-    # The tiny scan's roadmap, view candidates and coarse surface (Poisson: the one merged).
+    # The tiny scan's roadmap, view candidates and coarse surface (Poisson: the one merged), and
+    # a smaller search for the hangings' alignment (2 RANSAC runs, 4 rotation-grid fits kept of
+    # each ranking): each hanging is aligned twice (the quick model's and the reconstruction's).
     surfaces = {**TINY_PROCESSING["reconstruction"]["surfaces"], "methods": ["poisson"]}
-    processing = {**TINY_PROCESSING, "reconstruction": {"surfaces": surfaces}}
+    alignment = {"runs": 2, "coarse_starts_kept": 4}
+    processing = {
+        **TINY_PROCESSING,
+        "reconstruction": {"surfaces": surfaces, "alignment": alignment},
+    }
     tiny = {k: TINY_SCAN[k] for k in ("planner", "views")} | {"processing": processing}
     config = with_overrides(scan_config_from_dict(tiny, "tiny"), views=6, seed=2, hangings="auto")
     config = replace(config, camera=HALF_RESOLUTION, max_hangings=2)
@@ -185,6 +191,7 @@ def test_an_auto_scan_asks_for_a_second_hanging_and_the_operator_follows_it(
     assert len(manifest["hangings"]) == 2 and manifest.get("pending_rehang") is None
     # The reconstruction merged both hangings, kept the picture, and the summary tells the story.
     assert [p["hanging"] for p in report["hangings"]] == [1, 2]
+    assert report["hangings"][1]["verified"]
     assert (result.scan_dir / request["picture"]).is_file()
     summary = (result.scan_dir / "results" / "summary.md").read_text()
     assert "## Hangings asked for (hangings: auto)" in summary
