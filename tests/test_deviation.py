@@ -71,3 +71,31 @@ def test_rendered_mesh_takes_the_colour_of_its_deviation():
     assert outside[0] > outside[2] + 40  # red
     assert inside[2] > inside[0] + 40  # blue
     assert abs(on[0] - on[2]) < 25  # grey-white: lit, but neither red nor blue
+
+
+def test_a_rendered_picture_frees_its_renderer_in_the_thread_that_drew_it():
+    """Nothing of the renderer is left for the garbage collector: a GL context destroyed by a
+    collection in another thread (the pictures are drawn beside other work) aborted a process."""
+    import gc
+    import threading
+
+    from pydrake.geometry import SceneGraph
+    from pydrake.systems.framework import System
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(0.05)
+    images = []
+    gc.collect()
+    gc.disable()
+    try:
+        drawing = threading.Thread(
+            target=lambda: images.extend(
+                render_mesh(np.asarray(sphere.vertices), np.asarray(sphere.triangles), 48)
+            )
+        )
+        drawing.start()
+        drawing.join()
+        left = sum(isinstance(o, SceneGraph | System) for o in gc.get_objects())
+    finally:
+        gc.enable()
+    assert images and images[0].max() > 0
+    assert left == 0

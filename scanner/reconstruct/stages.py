@@ -14,6 +14,7 @@ results folder (captures are never modified):
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import math
@@ -319,6 +320,10 @@ def _reconstruct(
     # Then what measures and shows it: the pictures (Drake's renderer, matplotlib) beside the
     # truth's metrics (Open3D, numpy), written into the results folder with the report again.
     truth_samples = None
+    # Garbage of this thread is freed here, not by a collection the pictures' thread happens to
+    # trigger: a dropped simulation's VTK renderer holds a GL context that may only be destroyed
+    # where it was made (destroying it from another thread can abort the process).
+    gc.collect()
     with ThreadPoolExecutor(max_workers=1) as beside:
         pictures = beside.submit(_write_pictures, result, processing, truth, out)
         if to_first is not None:

@@ -76,7 +76,6 @@ def render_mesh(
         SceneGraph,
     )
     from pydrake.math import RigidTransform, RotationMatrix
-    from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.sensors import CameraInfo
 
     from planners.ik import look_at_rotation
@@ -86,8 +85,10 @@ def render_mesh(
     u = None if values01 is None else np.clip(np.asarray(values01, float), 0.002, 0.998)
     with tempfile.TemporaryDirectory() as tmp:
         obj = _write_obj(Path(tmp), v, triangles, u, colour_map)
-        builder = DiagramBuilder()
-        sg = builder.AddSystem(SceneGraph())
+        # A SceneGraph without a diagram: a diagram's Python objects form a reference cycle,
+        # which left the renderer (and its GL context) to whatever thread collects garbage next;
+        # this one is freed on return, in the thread that rendered.
+        sg = SceneGraph()
         sg.AddRenderer("vtk", MakeRenderEngineVtk(RenderEngineVtkParams()))
         source = sg.RegisterSource("mesh_render")
         instance = GeometryInstance(RigidTransform(), Mesh(str(obj)), "mesh")
@@ -96,9 +97,7 @@ def render_mesh(
             perception.AddProperty("phong", "diffuse", Rgba(*PLAIN_COLOUR, 1.0))
         instance.set_perception_properties(perception)
         sg.RegisterAnchoredGeometry(source, instance)
-        diagram = builder.Build()
-        context = diagram.CreateDefaultContext()
-        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(context))
+        query = sg.get_query_output_port().Eval(sg.CreateDefaultContext())
         centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
         radius = float(np.linalg.norm(v - centre, axis=1).max())
         focal = 1.2 * size_px
