@@ -52,6 +52,11 @@ def hardware_config(tmp_path: Path, em: Val3Emulator, name: str = "cell.yaml", *
                 "motion_port": em.motion_address[1],
                 "state_port": em.state_address[1],
                 "speed_fraction": 0.5,
+                # The emulator runs in this process, beside the command under test and another
+                # test worker on two cores: a STATUS message can be late by more than the real
+                # link's 0.5 s without any fault. The age limits themselves are tested against
+                # a scripted controller (test_val3_faults.py).
+                "state_timeout_s": 2.0,
             },
             "camera": {"kind": "simulated"},
         }
