@@ -105,6 +105,10 @@ def summary(result: ReconstructionResult) -> dict:
             "axxb_disagreement_rad": d.axxb_disagreement_rad,
             "last_change_m": d.last_change_m,
             "last_change_rad": d.last_change_rad,
+            # The accuracy the correction states: the expected (RMS) error of the camera's
+            # origin and orientation in X_FC (see HandEyeRefinement).
+            "sigma_translation_m": d.sigma_translation_m,
+            "sigma_rotation_rad": d.sigma_rotation_rad,
             "failures": list(d.failures),
         }
     return out
@@ -120,6 +124,11 @@ def _fit_record(r) -> dict:
         "iterations": r.iterations,
         "converged": r.converged,
         "formal_std": r.formal_std.tolist(),
+        "jackknife_std": r.jackknife_std.tolist(),
+        "sigma_translation_m": r.sigma_translation_m,
+        "sigma_rotation_rad": r.sigma_rotation_rad,
+        "last_step_m": r.last_step_m,
+        "last_step_rad": r.last_step_rad,
         "weakest_mode": r.weakest_mode.tolist(),
         "weakest_sensitivity": r.weakest_sensitivity,
     }

@@ -10,11 +10,13 @@ files run side by side.)
 
 import hashlib
 import json
+import math
 from dataclasses import replace
 
 import numpy as np
 import open3d as o3d
 import pytest
+import yaml
 from report_units import keys_breaking_the_unit_rule
 from scipy.spatial import cKDTree
 
@@ -66,6 +68,21 @@ def test_handeye_correction_recovers_the_true_mount(runs):
     assert r["handeye_error_before_mm"] == pytest.approx(3.0, abs=0.2)  # joint offsets add ~0.1
     assert r["handeye_error_mm"] < 0.5
     assert r["handeye_error_deg"] < 0.1
+
+
+def test_the_correction_states_a_sigma_that_holds_its_true_error(runs):
+    """Converged claims the accuracy the correction states (reconstruction.yaml): the true error
+    of the corrected mount lies within 3 of its sigmas, in translation and in rotation."""
+    run = runs["corrected"]
+    details = yaml.safe_load((run.results_dir / "reconstruction.yaml").read_text())
+    d = details["handeye"]["diagnosis"]
+    assert d["converged"] is True and run.report["handeye_converged"] is True, d["failures"]
+    sigma_mm, sigma_deg = 1e3 * d["sigma_translation_m"], math.degrees(d["sigma_rotation_rad"])
+    r = run.report
+    assert r["handeye_error_mm"] <= 3 * sigma_mm, (r["handeye_error_mm"], sigma_mm)
+    assert r["handeye_error_deg"] <= 3 * sigma_deg, (r["handeye_error_deg"], sigma_deg)
+    # Within the limits converged allows (handeye.convergence.max_sigma_m / _rad).
+    assert sigma_mm <= 1.0 and sigma_deg <= 0.3
 
 
 def test_correction_beats_icp_and_pose_only(runs, scan_dir):

@@ -8,8 +8,14 @@
 - last change: how far the last round's fit moved X_FC from where that round's registration
   started (the coarse answer or the round before): registration and correction must agree.
 
+- stated accuracy: the fit's own sigma (`HandEyeRefinement.sigma_translation_m`, from how much
+  X_FC depends on each view) must exist and be within the limits, and the fit's last step must
+  be small against it (a fit still moving by its stated sigma has not reached what it states).
+
 A wrong X_FC leaves the views apart (few matches, large RMS) and the ICP motions disagree with
-it; a right one passes all four.
+it; a right one passes all four. "Converged" also claims the stated sigma: a correction whose
+views cannot pin X_FC down to the limits, or that cannot say how well, is not converged, however
+well its views meet.
 """
 
 from __future__ import annotations
@@ -34,6 +40,15 @@ class ConvergenceLimits:
     max_axxb_disagreement_rad: float = math.radians(0.5)
     max_last_change_m: float = 0.003
     max_last_change_rad: float = math.radians(0.5)
+    # The largest stated accuracy (RMS error of the camera's origin / orientation) a converged
+    # correction may have: 3 sigma of 1 mm / 0.3 deg is about the mount error a scan starts
+    # from (a hand-made mount: 3 mm / 1 deg), so a correction that cannot state better has not
+    # shown that it improved on it.
+    max_sigma_m: float = 0.001
+    max_sigma_rad: float = math.radians(0.3)
+    # The fit's last step, as a share of its stated sigma: a fit still moving by a good part
+    # of what it claims has not reached it.
+    max_last_step_sigmas: float = 0.5
 
     def __post_init__(self) -> None:
         require_fraction("handeye.convergence", self, ("min_match_fraction",))
@@ -46,13 +61,18 @@ class ConvergenceLimits:
                 "max_axxb_disagreement_rad",
                 "max_last_change_m",
                 "max_last_change_rad",
+                "max_sigma_m",
+                "max_sigma_rad",
+                "max_last_step_sigmas",
             ),
         )
 
 
 @dataclass(frozen=True)
 class HandEyeDiagnosis:
-    """The figures (NaN: not available) and the checks that failed (empty: converged)."""
+    """The figures (NaN: not available) and the checks that failed (empty: converged).
+    `sigma_translation_m` / `sigma_rotation_rad`: the accuracy the correction states (the
+    fine fit's; see `HandEyeRefinement`)."""
 
     match_fraction: float
     match_rms_m: float
@@ -61,6 +81,8 @@ class HandEyeDiagnosis:
     last_change_m: float
     last_change_rad: float
     failures: tuple[str, ...]
+    sigma_translation_m: float = math.nan
+    sigma_rotation_rad: float = math.nan
 
     @property
     def converged(self) -> bool:
@@ -98,6 +120,14 @@ def diagnose(
             failures.append(
                 f"match RMS {1e3 * rms:.2f} mm (limit {1e3 * limits.max_match_rms_m:g} mm)"
             )
+    sigma_t = sigma_r = nan
+    if refinement is not None and not np.allclose(refinement.X_FC, X_FC, rtol=0, atol=1e-12):
+        # Kept the nominal or the AX = XB answer (the fit was beyond the sanity limits): the
+        # fit's sigma is not the accuracy of the X_FC in use, and nothing else states one.
+        failures.append("the X_FC in use is not the joint fit's: its accuracy is not stated")
+    elif refinement is not None:
+        sigma_t, sigma_r = refinement.sigma_translation_m, refinement.sigma_rotation_rad
+        failures += _accuracy_failures(refinement, limits)
     axxb_t = axxb_r = nan
     if X_FC_axxb is not None and np.all(np.isfinite(X_FC_axxb)):
         axxb_t, axxb_r = pose_difference(X_FC_axxb, X_FC)
@@ -118,4 +148,29 @@ def diagnose(
                 f"{1e3 * limits.max_last_change_m:g} mm / "
                 f"{math.degrees(limits.max_last_change_rad):g} deg)"
             )
-    return HandEyeDiagnosis(fraction, rms, axxb_t, axxb_r, change_t, change_r, tuple(failures))
+    return HandEyeDiagnosis(
+        fraction, rms, axxb_t, axxb_r, change_t, change_r, tuple(failures), sigma_t, sigma_r
+    )
+
+
+def _accuracy_failures(refinement: HandEyeRefinement, limits: ConvergenceLimits) -> list[str]:
+    """The stated accuracy's checks: it exists, it is within the limits, and the fit is not
+    still moving by a good part of it."""
+    sigma_t, sigma_r = refinement.sigma_translation_m, refinement.sigma_rotation_rad
+    if not (np.isfinite(sigma_t) and np.isfinite(sigma_r)):
+        return ["the fit cannot state its accuracy (too few views, or one view holds it up)"]
+    failures = []
+    if sigma_t > limits.max_sigma_m or sigma_r > limits.max_sigma_rad:
+        failures.append(
+            f"the views pin X_FC down to {1e3 * sigma_t:.2f} mm / {math.degrees(sigma_r):.3f} deg"
+            f" only (sigma; limit {1e3 * limits.max_sigma_m:g} mm / "
+            f"{math.degrees(limits.max_sigma_rad):g} deg)"
+        )
+    k = limits.max_last_step_sigmas
+    if refinement.last_step_m > k * sigma_t or refinement.last_step_rad > k * sigma_r:
+        failures.append(
+            f"the fit was still moving X_FC by {1e3 * refinement.last_step_m:.3f} mm / "
+            f"{math.degrees(refinement.last_step_rad):.4f} deg a step when it stopped "
+            f"(limit {k:g} x its sigma)"
+        )
+    return failures
