@@ -237,4 +237,7 @@ def test_diagnosis_flags_disagreeing_solvers(rough_mount_scan):
     assert diagnose(good.X_FC, good, scan.X_FC_true, good.X_FC, ConvergenceLimits()).converged
     off = scan.X_FC_true @ twist_to_pose([0.0, 0.0, math.radians(1.0), 0.005, 0.0, 0.0])
     verdict = diagnose(good.X_FC, good, off, off, ConvergenceLimits())
-    assert [f.split(" ")[0] for f in verdict.failures] == ["AX", "the"]
+    assert [f.split(" ")[0] for f in verdict.failures] == ["AX", "the", "the"]
+    # Two answers 5 mm apart: the stated sigma is at least half of that, beyond the limits.
+    assert "pin X_FC down" in verdict.failures[2]
+    assert verdict.sigma_translation_m >= 0.0025
