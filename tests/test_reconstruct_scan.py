@@ -83,6 +83,12 @@ def test_the_correction_states_a_sigma_that_holds_its_true_error(runs):
     assert r["handeye_error_deg"] <= 3 * sigma_deg, (r["handeye_error_deg"], sigma_deg)
     # Within the limits converged allows (handeye.convergence.max_sigma_m / _rad).
     assert sigma_mm <= 1.0 and sigma_deg <= 0.3
+    # The report and the summary state the same accuracy.
+    stated = r["handeye_diagnosis"]
+    assert stated["sigma_mm"] == pytest.approx(sigma_mm) and stated["sigma_deg"] == pytest.approx(
+        sigma_deg
+    )
+    assert f"{sigma_mm:.3f} mm, {sigma_deg:.3f} deg" in (run.results_dir / "summary.md").read_text()
 
 
 def test_correction_beats_icp_and_pose_only(runs, scan_dir):

@@ -13,6 +13,8 @@ def _report(converged: bool) -> dict:
             "axxb_disagreement_deg": 0.026,
             "last_change_mm": 0.11,
             "last_change_deg": 0.02,
+            "sigma_mm": 0.21,
+            "sigma_deg": 0.031,
             "failures": [] if converged else ["only 13 % of the points meet the overlapping views"],
         },
     }
@@ -21,6 +23,10 @@ def _report(converged: bool) -> dict:
 def test_a_converged_correction_is_stated_without_a_warning(tmp_path):
     text = write_summary(_report(True), tmp_path).read_text()
     assert "the correction converged" in text and "79 % of the points" in text
+    assert (
+        "the accuracy the correction states (RMS, from how much it depends on each view): "
+        "0.210 mm, 0.031 deg" in text
+    )
     assert "WARNING" not in text and handeye_warning(_report(True)) is None
 
 

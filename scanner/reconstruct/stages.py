@@ -126,6 +126,10 @@ def _write_model(
                 "axxb_disagreement_deg": math.degrees(d["axxb_disagreement_rad"]),
                 "last_change_mm": 1e3 * d["last_change_m"],
                 "last_change_deg": math.degrees(d["last_change_rad"]),
+                # The accuracy the correction states (RMS error of X_FC's origin and
+                # orientation): what "converged" claims.
+                "sigma_mm": 1e3 * d["sigma_translation_m"],
+                "sigma_deg": math.degrees(d["sigma_rotation_rad"]),
                 "failures": d["failures"],
             },
         }

@@ -229,6 +229,11 @@ def _handeye_lines(report: dict) -> list[str]:
             f"{_fmt(d['axxb_disagreement_mm'])} mm / {_fmt(d['axxb_disagreement_deg'])} deg, "
             f"the last round moved it {_fmt(d['last_change_mm'])} mm; {accepted}"
         )
+        if "sigma_mm" in d:
+            lines.append(
+                f"- the accuracy the correction states (RMS, from how much it depends on each "
+                f"view): {_fmt(d['sigma_mm'])} mm, {_fmt(d['sigma_deg'])} deg"
+            )
     if "handeye_error_mm" in report:
         before, after = report["handeye_error_before_mm"], report["handeye_error_mm"]
         lines += [
