@@ -59,7 +59,7 @@ def _scan(capfd, root: Path, name: str, depth_scale_error: float, calibration: P
     config = {
         "hangings": 1,
         "sensor": "rgbd",
-        "views": {"count": 4, "candidates": 200, "roll_candidates": 4},
+        "views": {"count": 6, "candidates": 200, "roll_candidates": 4},
         "planner": {"roadmap_milestones": 120, "prm_build_time_s": 20.0},
         "processing": PROCESSING,
         "error_model": {"depth_scale_error": depth_scale_error},
