@@ -320,7 +320,7 @@ def test_calibrate_over_the_wire(tmp_path, capfd, run_dir):
         assert np.abs(q - simulated_q[station]).max() < 1e-5
     X_FC = load_calibration(tmp_path / "cal" / "results" / "calibration.yaml").X_FC
     dt, dr = pose_difference(X_FC, simulated.solution.hand_eye.X_FC)
-    assert dt < 0.1e-3 and dr < np.radians(0.02), (dt, dr)
+    assert dt < 0.05e-3 and dr < np.radians(0.01), (dt, dr)
     assert report["truth"]["handeye_error_mm"] == pytest.approx(
         simulated.report["truth"]["handeye_error_mm"], abs=0.1
     )
