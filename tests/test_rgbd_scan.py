@@ -2,9 +2,9 @@
 images and the device's depth-scale error from the board; a scan with that calibration models
 the object as well as one with an exact device, and better than one without it.
 
-The commands run in the test's process (`tests.in_process`); the scans take 4 views and build the
+The commands run in the test's process (`tests.in_process`); the scans take 6 views and build the
 Poisson surface alone (the tiny scan's coarse settings): what is compared is the fused cloud
-(measured, mm: exact 0.542, uncorrected 0.934, corrected 0.551, offline 0.555)."""
+(measured, mm: exact device 0.528, uncorrected 0.935, corrected 0.526, offline 0.514)."""
 
 from __future__ import annotations
 
@@ -75,17 +75,21 @@ def _scan(capfd, root: Path, name: str, depth_scale_error: float, calibration: P
     return report
 
 
+# The fused cloud's observed Chamfer of these 6 views from an exact device (no depth-scale
+# error), measured: 0.528 mm; a corrected scan must come within 1.2x of it.
+EXACT_DEVICE_BOUND_MM = 1.2 * 0.528
+
+
 def test_a_scan_with_the_calibration_undoes_the_depth_scale_error(calibration, tmp_path, capfd):
-    exact = _scan(capfd, tmp_path, "exact", 0.0, None)
     uncorrected = _scan(capfd, tmp_path, "uncorrected", DEPTH_SCALE_ERROR, None)
     corrected = _scan(capfd, tmp_path, "corrected", DEPTH_SCALE_ERROR, calibration[0])
     fused = {
         k: r["surfaces"]["fused_cloud"]["chamfer_observed_mm"]
-        for k, r in (("exact", exact), ("uncorrected", uncorrected), ("corrected", corrected))
+        for k, r in (("uncorrected", uncorrected), ("corrected", corrected))
     }
     # A 1 % scale at 0.5 m is 5 mm of depth: the views no longer agree and the model is off.
-    assert fused["uncorrected"] > 1.5 * fused["exact"], fused
-    assert fused["corrected"] < 1.2 * fused["exact"], fused
+    assert fused["uncorrected"] > 1.5 * fused["corrected"], fused
+    assert fused["corrected"] < EXACT_DEVICE_BOUND_MM, fused
     # Offline: the uncorrected captures reconstructed with the calibration are corrected too.
     out = tmp_path / "offline"
     r = scanner(
@@ -99,4 +103,4 @@ def test_a_scan_with_the_calibration_undoes_the_depth_scale_error(calibration, t
     )
     assert r.returncode == 0, r.stderr
     offline = json.loads((out / "report.json").read_text())
-    assert offline["surfaces"]["fused_cloud"]["chamfer_observed_mm"] < 1.2 * fused["exact"]
+    assert offline["surfaces"]["fused_cloud"]["chamfer_observed_mm"] < EXACT_DEVICE_BOUND_MM

@@ -3,13 +3,14 @@
 Open3D holds Python's GIL for the whole solve (12 s at depth 9 on a 24-view scan), so in a
 thread it stalls everything else in Python, the TSDF fusion beside it included. A child
 interpreter (`python -m reconstruction.surfaces.poisson_solver`) solves while this process goes on:
-it is started early (`start_solver`, while registration runs, so its 1.5 s of imports are
-hidden), then reads the paths of an input and an output .npz from its stdin. If the child
-cannot run, the solve happens here.
+it is started early (`start_solver`, while registration runs, so its imports are hidden), then
+reads the paths of an input and an output .npz from its stdin, one solve after another. If the
+child cannot run, the solve happens here.
 """
 
 from __future__ import annotations
 
+import atexit
 import logging
 import os
 import subprocess
@@ -60,41 +61,73 @@ def solve_poisson(
 
 
 _lock = threading.Lock()
-_waiting: subprocess.Popen | None = None  # a started child that has not been given work
+# Started children with nothing to do. A child serves one solve after another (the 0.8 s of
+# importing Open3D is paid once per process, not once per surface); two solves at the same time
+# (a hanging's surface beside the closed one) each get their own.
+_idle: list[subprocess.Popen] = []
+_MAX_IDLE = 2
 
 
 def _spawn() -> subprocess.Popen:
     root = str(Path(__file__).resolve().parents[1])
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")])}
+    # stderr is not read while the child lives (a full pipe would stall it): the child reports
+    # a failed solve on stdout, and a child that died is answered by solving here.
     return subprocess.Popen(
         [sys.executable, "-m", "reconstruction.surfaces.poisson_solver"],
         env=env,
         stdin=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
         text=True,
     )
 
 
 def start_solver() -> None:
-    """Start a child now so that it is ready when `solve_poisson_apart` needs it (at most one
-    waits; an unused one exits when this process closes its stdin at exit)."""
-    global _waiting
+    """Start a child now so that it is ready when `solve_poisson_apart` needs it (none if one
+    already waits). A waiting child exits when this process exits (its stdin closes)."""
     with _lock:
-        if _waiting is None or _waiting.poll() is not None:
-            try:
-                _waiting = _spawn()
-            except OSError as e:
-                log.warning("could not start the Poisson solver process: %s", e)
+        _idle[:] = [c for c in _idle if c.poll() is None]
+        if _idle:
+            return
+        try:
+            _idle.append(_spawn())
+        except OSError as e:
+            log.warning("could not start the Poisson solver process: %s", e)
 
 
 def _take_solver() -> subprocess.Popen:
-    global _waiting
     with _lock:
-        child, _waiting = _waiting, None
-    if child is None or child.poll() is not None:
-        child = _spawn()
-    return child
+        while _idle:
+            child = _idle.pop()
+            if child.poll() is None:
+                return child
+    return _spawn()
+
+
+def _give_back(child: subprocess.Popen) -> None:
+    with _lock:
+        if len(_idle) < _MAX_IDLE:
+            _idle.append(child)
+            return
+    _close(child)
+
+
+def _close(child: subprocess.Popen) -> None:
+    try:
+        child.stdin.close()
+        child.wait(timeout=5)
+    except (OSError, subprocess.TimeoutExpired):
+        child.kill()
+        child.wait()
+
+
+@atexit.register
+def _close_idle() -> None:
+    with _lock:
+        children, _idle[:] = list(_idle), []
+    for child in children:
+        _close(child)
 
 
 def solve_poisson_apart(
@@ -105,34 +138,51 @@ def solve_poisson_apart(
     with tempfile.TemporaryDirectory(prefix="poisson-") as tmp:
         given, solved = Path(tmp) / "in.npz", Path(tmp) / "out.npz"
         np.savez(given, points=points, normals=normals, colors=colors, depth=depth)
+        child = None
         try:
             child = _take_solver()
-            _, err = child.communicate(f"{given}\n{solved}\n")
-            code = child.returncode
+            child.stdin.write(f"{given}\n{solved}\n")
+            child.stdin.flush()
+            answer = child.stdout.readline().strip()
         except OSError as e:
-            code, err = -1, str(e)
-        if code == 0 and solved.is_file():
+            answer = f"error: {e}"
+        if answer == "ok" and solved.is_file():
+            _give_back(child)
             with np.load(solved) as f:
                 return PoissonSolution(f["vertices"], f["triangles"], f["colors"], f["density"])
+        if child is not None:
+            child.kill()
+            child.wait()
         log.warning(
-            "Poisson solver process failed (exit %d: %s); solving in this process",
-            code,
-            (err or "").strip().splitlines()[-1:] or "no message",
+            "Poisson solver process failed (%s); solving in this process",
+            answer or f"it exited with {child.returncode if child else 'no process'}",
         )
     return solve_poisson(points, normals, colors, depth)
 
 
 def _serve() -> None:
-    """The child: import what the solve needs, then wait for the two paths on stdin (none:
-    the parent did not need it, exit)."""
+    """The child: import what the solve needs, then solve each pair of paths read from stdin
+    (input, output), answering `ok` or `error: ...` on stdout; exit when stdin closes."""
     import open3d  # noqa: F401  (the slow import, done before the work arrives)
 
-    given, solved = sys.stdin.readline().strip(), sys.stdin.readline().strip()
-    if not given or not solved:
-        return
-    with np.load(given) as f:
-        s = solve_poisson(f["points"], f["normals"], f["colors"], int(f["depth"]))
-    np.savez(solved, vertices=s.vertices, triangles=s.triangles, colors=s.colors, density=s.density)
+    while True:
+        given, solved = sys.stdin.readline().strip(), sys.stdin.readline().strip()
+        if not given or not solved:
+            return
+        try:
+            with np.load(given) as f:
+                s = solve_poisson(f["points"], f["normals"], f["colors"], int(f["depth"]))
+            np.savez(
+                solved,
+                vertices=s.vertices,
+                triangles=s.triangles,
+                colors=s.colors,
+                density=s.density,
+            )
+            answer = "ok"
+        except Exception as e:  # noqa: BLE001  (reported to the parent, which solves itself)
+            answer = f"error: {type(e).__name__}: {e}".replace("\n", " ")
+        print(answer, flush=True)
 
 
 if __name__ == "__main__":

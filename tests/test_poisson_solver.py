@@ -1,0 +1,64 @@
+"""The Poisson solve in a child process: the same surface as in this process, one child serving
+solve after solve, and a child that died or failed answered by solving here."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from reconstruction.surfaces import poisson_solver as ps
+
+
+def _sphere(n: int = 3000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(0)
+    normals = rng.normal(size=(n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    colors = rng.integers(0, 256, (n, 3), dtype=np.uint8)
+    return 0.05 * normals + [0.4, 0.0, 1.0], normals, colors
+
+
+@pytest.fixture
+def no_children():
+    ps._close_idle()
+    yield
+    ps._close_idle()
+
+
+def test_the_child_solves_as_this_process_would_and_serves_the_next_solve(no_children):
+    points, normals, colors = _sphere()
+    here = ps.solve_poisson(points, normals, colors, 5)
+    ps.start_solver()
+    (child,) = ps._idle
+    first = ps.solve_poisson_apart(points, normals, colors, 5)
+    np.testing.assert_array_equal(first.vertices, here.vertices)
+    np.testing.assert_array_equal(first.triangles, here.triangles)
+    np.testing.assert_array_equal(first.colors, here.colors)
+    np.testing.assert_array_equal(first.density, here.density)
+    # The same child waits again and solves the next surface (no second start).
+    assert ps._idle == [child] and child.poll() is None
+    no_colors = np.empty((0, 3), np.uint8)
+    second = ps.solve_poisson_apart(points[::2], normals[::2], no_colors, 4)
+    assert ps._idle == [child]
+    expected = ps.solve_poisson(points[::2], normals[::2], no_colors, 4)
+    np.testing.assert_array_equal(second.vertices, expected.vertices)
+    assert len(second.vertices) != len(first.vertices)  # a different surface, not the last one
+    ps._close_idle()
+    assert child.returncode == 0  # closing its stdin ends it
+
+
+def test_a_dead_child_is_replaced_and_a_failed_solve_is_solved_here(no_children, caplog):
+    points, normals, colors = _sphere()
+    here = ps.solve_poisson(points, normals, colors, 5)
+    ps.start_solver()
+    (dead,) = ps._idle
+    dead.kill()
+    dead.wait()
+    again = ps.solve_poisson_apart(points, normals, colors, 5)
+    np.testing.assert_array_equal(again.vertices, here.vertices)
+    assert dead not in ps._idle and len(ps._idle) == 1  # a new child, kept for the next
+    # A child that fails the solve says so on stdout; the surface is then solved here.
+    bad = np.full((10, 3), np.nan)
+    with caplog.at_level("WARNING", logger="scanner.reconstruct.stages"):
+        with pytest.raises(Exception):  # noqa: B017  (Open3D's own error, here as in the child)
+            ps.solve_poisson_apart(bad, bad, np.empty((0, 3), np.uint8), -1)
+    assert "Poisson solver process failed (error: " in caplog.text
