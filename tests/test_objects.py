@@ -106,3 +106,28 @@ def test_named_mesh_from_the_mesh_path(tmp_path, monkeypatch):
     with pytest.raises(ScannerError, match="SCANNER_MESH_PATH"):
         resolve_object("teacup", 0.1)
     assert resolve_object("vase", 0.1).extent_m.max() == pytest.approx(0.1, abs=1e-6)
+
+
+def test_the_collision_hull_beside_the_obj_is_drakes_hull_of_the_mesh(tmp_path, vase_sim):
+    from pydrake.geometry import Convex, Mesh, Role
+
+    from robots.models.objects import collision_hull_path
+
+    mesh = resolve_object("pebble", 0.2)
+    obj = write_textured_obj(mesh, tmp_path, texture_seed=1)
+    hull = collision_hull_path(obj)
+    assert hull.is_file()
+
+    def vertices(surface) -> set:
+        return {tuple(np.round(surface.vertex(i), 9)) for i in range(surface.num_vertices())}
+
+    assert vertices(Convex(str(hull)).GetConvexHull()) == vertices(Mesh(str(obj)).GetConvexHull())
+    # The simulated cell registers that hull as the object's collision shape.
+    inspector = vase_sim.workcell.scene_graph.model_inspector()
+    shapes = [
+        inspector.GetShape(g)
+        for g in inspector.GetAllGeometryIds(Role.kProximity)
+        if inspector.GetName(g).endswith("object_collision")
+    ]
+    assert len(shapes) == 1 and isinstance(shapes[0], Convex)
+    assert str(shapes[0].source().path()).endswith("collision_hull.obj")

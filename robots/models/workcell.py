@@ -17,6 +17,7 @@ import numpy as np
 from pydrake.geometry import (
     Box,
     CollisionFilterDeclaration,
+    Convex,
     Cylinder,
     GeometryInstance,
     GeometrySet,
@@ -36,6 +37,7 @@ from pydrake.planning import RobotDiagram, RobotDiagramBuilder
 
 from reconstruction.common.errors import ScannerError
 from robots.models import camera_tool
+from robots.models.objects import collision_hull_path
 from robots.models.rx60 import FLANGE_FRAME, RX60, rx60_urdf
 
 RENDERER_NAME = "vtk"
@@ -275,8 +277,12 @@ def _add_object(
         plant.RegisterVisualGeometry(
             body, textured_instance(mesh, "object_visual", int(body.index()))
         )
+        # Collision queries see a mesh as its convex hull: the hull itself, when it was
+        # written beside the OBJ, spares Drake parsing and hulling the whole mesh again.
+        hull = collision_hull_path(obj.obj_path)
+        collision = Convex(str(hull)) if hull.is_file() else mesh
         plant.RegisterCollisionGeometry(
-            body, RigidTransform(), mesh, "object_collision", _friction()
+            body, RigidTransform(), collision, "object_collision", _friction()
         )
     else:
         radius = keep_out_radius_m(config)
