@@ -12,8 +12,8 @@ import pytest
 from pydrake.math import RigidTransform, RotationMatrix
 
 from reconstruction.common.errors import ScannerError
-from robots.arms.arm import load_arm
-from robots.arms.arm_file import load_arm_file, read_arm_file
+from robots.arms.arm import load_arm, load_arm_file
+from robots.arms.arm_file import read_arm_file
 from robots.arms.general_ik import redundant_grid
 from robots.arms.model import load_arm_plant, model_text
 

@@ -61,3 +61,11 @@ def load_arm(spec: Path | str) -> Arm:
     """The arm of an arm file (its path). ScannerError, one line, for any fault in the file."""
     arm_file = read_arm_file(spec)
     return arm_from_plant(arm_file, load_arm_plant(arm_file))
+
+
+def load_arm_file(path: Path | str) -> ArmFile:
+    """A fully checked arm file: its fields, and against its model the flange link and a limit
+    for every joint (from the model or the file). Raises ScannerError, one line."""
+    arm_file = read_arm_file(path)
+    load_arm_plant(arm_file)
+    return arm_file

@@ -17,13 +17,32 @@ Paths are relative to the arm file. Every error is one line naming the file and 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.yaml_files import read_yaml
-from robots.arms.general_ik import IkSettings
-from robots.arms.model import load_arm_plant
+
+
+@dataclass(frozen=True)
+class IkSettings:
+    """seeds: starts per solve (per grid value on a redundant arm). redundant_joint: the joint
+    fixed on a grid when the arm has more than 6 joints (None: the third). redundant_steps: grid
+    values over its range, ends included. Tolerances: what a solution must reach (m, rad), and
+    below what joint difference (rad or m) two answers are one solution. turn_variants: add the
+    2 pi-shifted copies of wide revolute joints."""
+
+    seeds: int = 48
+    redundant_joint: str | None = None
+    redundant_steps: int = 9
+    position_tolerance_m: float = 1e-9
+    orientation_tolerance_rad: float = 1e-9
+    distinct_tolerance: float = 1e-6
+    turn_variants: bool = True
+
+    def replace(self, **changes) -> IkSettings:
+        return replace(self, **changes)
+
 
 MODEL_SUFFIXES = (".urdf", ".sdf", ".xacro")
 
@@ -179,11 +198,3 @@ def read_arm_file(path: Path | str) -> ArmFile:
         joint_limits=_joint_limits(path, data.get("joint_limits") or {}),
         ik=_ik(path, data.get("ik") or {}),
     )
-
-
-def load_arm_file(path: Path | str) -> ArmFile:
-    """A fully checked arm file: its fields, and against its model the flange link and a limit
-    for every joint (from the model or the file). Raises ScannerError, one line."""
-    arm_file = read_arm_file(path)
-    load_arm_plant(arm_file)
-    return arm_file

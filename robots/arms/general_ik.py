@@ -16,7 +16,6 @@ its range, and the other joints solved for each value.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -25,6 +24,10 @@ from pydrake.multibody.inverse_kinematics import InverseKinematics
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.solvers import SnoptSolver
 from scipy.stats import qmc
+
+from robots.arms.arm_file import IkSettings
+
+DEFAULT_IK_SETTINGS = IkSettings()
 
 if TYPE_CHECKING:
     from robots.arms.model import ArmPlant
@@ -37,26 +40,6 @@ SOLVER_ORIENTATION_TOLERANCE_RAD = 1e-4
 POLISH_STEPS = 20
 # Halton with this seed: the fixed seeds of every request.
 SEED_SEQUENCE_SEED = 0
-
-
-@dataclass(frozen=True)
-class IkSettings:
-    """seeds: starts per solve (per grid value on a redundant arm). redundant_joint: the joint
-    fixed on a grid when the arm has more than 6 joints (None: the third). redundant_steps: grid
-    values over its range, ends included. Tolerances: what a solution must reach (m, rad), and
-    below what joint difference (rad or m) two answers are one solution. turn_variants: add the
-    2 pi-shifted copies of wide revolute joints."""
-
-    seeds: int = 48
-    redundant_joint: str | None = None
-    redundant_steps: int = 9
-    position_tolerance_m: float = 1e-9
-    orientation_tolerance_rad: float = 1e-9
-    distinct_tolerance: float = 1e-6
-    turn_variants: bool = True
-
-    def replace(self, **changes) -> IkSettings:
-        return replace(self, **changes)
 
 
 def redundant_index(arm: ArmPlant, settings: IkSettings) -> int | None:
@@ -142,7 +125,7 @@ def _within_limits(arm: ArmPlant, q: np.ndarray) -> np.ndarray | None:
 
 
 def solve_ik(
-    arm: ArmPlant, X_WF_target: RigidTransform, settings: IkSettings = IkSettings()
+    arm: ArmPlant, X_WF_target: RigidTransform, settings: IkSettings = DEFAULT_IK_SETTINGS
 ) -> np.ndarray:
     """All distinct joint vectors (k, n) that put the flange at X_WF_target, sorted; (0, n) when
     none was found. On a redundant arm, only those with the redundant joint on its grid."""
