@@ -33,12 +33,12 @@ from planners.ik import Viewpoint, camera_pose, rig_centre_offset
 from planners.planner import Planner, PlannerConfig
 from planners.timing import Trajectory
 from planners.validation import dense_times
+from reconstruction.common.sphere import fibonacci_directions
 from reconstruction.stereo.camera_model import default_stereo_camera
 from robots.models import camera_tool
 from robots.models.kinematics import Kinematics
 from robots.models.workcell import WorkcellConfig, build_workcell
 from robots.simulation.cell import HOME_Q
-from scanner.scan.sampling import fibonacci_directions
 
 RADIUS_M = 0.5
 ROLLS_RAD = (-math.pi / 6, 0.0, math.pi / 6)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
+from reconstruction.common.sphere import fibonacci_directions
 from reconstruction.common.transforms import (
     invert,
     make_pose,
@@ -25,7 +26,6 @@ from reconstruction.common.transforms import (
 from reconstruction.registration.views import DepthImage, ViewCloud
 from robots.models.camera_tool import nominal_X_FC
 from robots.models.objects import resolve_object
-from scanner.scan.sampling import fibonacci_directions
 
 OBJECT_CENTER_W = np.array([0.30, 0.0, 0.78])  # the default cell's scan centre
 # The view direction the RX60 reaches best: from the robot's side, slightly from below

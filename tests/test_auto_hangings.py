@@ -13,13 +13,14 @@ import pytest
 import yaml
 
 from reconstruction.common.errors import ScannerError
+from reconstruction.common.sphere import fibonacci_directions
 from reconstruction.common.transforms import rotation_between
 from reconstruction.evaluation.coverage import seen_surface
 from reconstruction.surfaces.fused import FusedCloud
 from robots.simulation.operator import instructed_rotation
 from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.scan.auto_hangings import decide
-from scanner.scan.next_hanging import fibonacci_directions, instruction, next_best_hanging
+from scanner.scan.next_hanging import instruction, next_best_hanging
 
 UP = np.array([0.0, 0.0, 1.0])
 CENTRE = np.array([0.4, 0.0, 1.0])

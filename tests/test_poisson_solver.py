@@ -58,7 +58,10 @@ def test_a_dead_child_is_replaced_and_a_failed_solve_is_solved_here(no_children,
     assert dead not in ps._idle and len(ps._idle) == 1  # a new child, kept for the next
     # A child that fails the solve says so on stdout; the surface is then solved here.
     bad = np.full((10, 3), np.nan)
-    with caplog.at_level("WARNING", logger="scanner.reconstruct.stages"):
-        with pytest.raises(Exception):  # noqa: B017  (Open3D's own error, here as in the child)
-            ps.solve_poisson_apart(bad, bad, np.empty((0, 3), np.uint8), -1)
+    # (Open3D's own error, here as in the child.)
+    with (
+        caplog.at_level("WARNING", logger="scanner.reconstruct.stages"),
+        pytest.raises(Exception),  # noqa: B017
+    ):
+        ps.solve_poisson_apart(bad, bad, np.empty((0, 3), np.uint8), -1)
     assert "Poisson solver process failed (error: " in caplog.text

@@ -8,8 +8,8 @@ import pytest
 from planners.ik import Viewpoint
 from planners.tour import plan_tour, tour_cost
 from reconstruction.common.errors import ScannerError
+from reconstruction.common.sphere import fibonacci_directions
 from scanner.configs.views import ViewpointConfig
-from scanner.scan.sampling import fibonacci_directions
 from scanner.scan.viewpoints import generate_viewpoints
 from scanner.scan_dir.views import PlannedView, ViewOption
 

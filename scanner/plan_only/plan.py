@@ -16,13 +16,13 @@ from planners.ik import Viewpoint, camera_pose, ik_camera
 from planners.planner import PlanFailure, Planner
 from planners.tour import plan_tour
 from reconstruction.common.errors import ScannerError
+from reconstruction.common.sphere import fibonacci_directions
 from robots.models.kinematics import Kinematics
 from robots.models.workcell import keep_out_radius_m
 from scanner.configs.scan import ScanConfig
 from scanner.configs.views import ViewpointConfig
 from scanner.plan_only.records import PlannedViewpoint, ScanPlan
 from scanner.scan.decision import FixedViewList
-from scanner.scan.sampling import fibonacci_directions
 from scanner.scan.world import ScanWorld, setup_world
 from scanner.scan_dir.outputs import PLAN_FILE  # written last: it marks a finished plan
 from scanner.scan_dir.results_folder import holds_result, staged_folder

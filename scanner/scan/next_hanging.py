@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from reconstruction.common.sphere import fibonacci_directions
 from reconstruction.common.transforms import rotation_about, rotation_between
 from reconstruction.evaluation.coverage import SeenSurface
 from reconstruction.evaluation.metrics import SurfaceSamples, visibility
@@ -39,15 +40,6 @@ class HangingChoice:
     up_W: np.ndarray
     clamp_W: np.ndarray
     gain: float
-
-
-def fibonacci_directions(n: int) -> np.ndarray:
-    """n unit vectors spread evenly over the sphere."""
-    k = np.arange(n) + 0.5
-    z = 1 - 2 * k / n
-    phi = math.pi * (1 + math.sqrt(5)) * k
-    r = np.sqrt(1 - z**2)
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
 def next_best_hanging(

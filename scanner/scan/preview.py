@@ -10,12 +10,12 @@ import numpy as np
 
 from planners.ik import Viewpoint, camera_pose, ik_camera, look_at_rotation, rig_centre_offset
 from reconstruction.common.errors import ScannerError
+from reconstruction.common.sphere import fibonacci_directions
 from robots.models import camera_tool
 from robots.models.workcell import WorkcellConfig
 from robots.simulation.cell import HOME_Q, create_simulation
 from robots.simulation.stereo_camera import render_overview
 from robots.simulation.truth import ErrorModel
-from scanner.scan.sampling import fibonacci_directions
 
 
 @dataclass(frozen=True)

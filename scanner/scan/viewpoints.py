@@ -22,8 +22,9 @@ import numpy as np
 
 from planners.ik import Viewpoint
 from reconstruction.common.errors import ScannerError
+from reconstruction.common.sphere import fibonacci_directions
 from scanner.configs.views import ViewpointConfig
-from scanner.scan.sampling import farthest_point_sample, fibonacci_directions
+from scanner.scan.sampling import farthest_point_sample
 from scanner.scan_dir.views import PlannedView, ViewOption
 
 
