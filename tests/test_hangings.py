@@ -304,6 +304,12 @@ def test_a_two_hanging_scan_is_aligned_and_sees_the_whole_object(two_hangings):
     # where its two passes disagree, so more of the grazing rim is bridged. With these 10 views
     # and depth 7: 0.0022 (straight through) and 0.0023 m^2 (this scan).
     assert r["closed_model"]["watertight"] and r["closed_model"]["filled_area_m2"] < 0.003
+    # That bridged area is the closed model's interpolated share (the bunny: 0.094 m^2).
+    assert 0 < r["closed_model"]["interpolated_fraction"] < 0.003 / 0.09
+    summary = (two_hangings.scan_dir / "results" / "summary.md").read_text()
+    assert "% of its area is interpolated, not measured" in summary
+    # All of the bunny is observable from somewhere around it; the two hangings saw nearly all.
+    assert r["observable_fraction"] > 0.999 and r["completeness_observable_2mm"] > 0.9
     for p in passes:  # each hanging alone saw less than both together
         assert 0 <= p["coverage_estimate"] <= 1
         assert p["observed_fraction"] < r["observed_fraction"]

@@ -177,6 +177,13 @@ def test_summary_judges_every_figure_and_tells_the_handeye_story(runs, tiny_scan
         row = next(line for line in summary.splitlines() if line.startswith(f"| {f.label} |"))
         assert f"**{f.verdict(report[key])}**" in row and f.band() in row and f.definition in row
     assert "Observed against whole object" in summary
+    # A camera somewhere around the vase sees all of it (only its rod's top is hidden, and that
+    # is no surface): against what is observable, completeness is the whole-object one.
+    assert report["observable_fraction"] > 0.999
+    assert report["completeness_observable_2mm"] == pytest.approx(
+        report["completeness_2mm"], abs=1e-3
+    )
+    assert "Observable at all: " in summary and "no scan of this object can see" in summary
     for name in ("poisson", "tsdf"):
         assert f"![{name} deviation](deviation_{name}.png)" in summary
         stats = report["deviation"][name]

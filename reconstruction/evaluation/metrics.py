@@ -158,9 +158,12 @@ def surface_metrics(
     result_to_truth_m: np.ndarray,
     truth_to_result_m: np.ndarray,
     observed: np.ndarray | None = None,
+    observable: np.ndarray | None = None,
 ) -> dict[str, float]:
     """The report's keys from the two distance sets (m in, mm out). `observed`: mask over the
-    truth samples; adds the *_observed_* keys and `observed_fraction`."""
+    truth samples; adds the *_observed_* keys and `observed_fraction`. `observable`: mask of
+    the samples a camera could see from anywhere around (evaluation/observable.py); adds
+    `observable_fraction` and `completeness_observable_2mm`."""
     d_rt = np.asarray(result_to_truth_m, float)
     d_tr = np.asarray(truth_to_result_m, float)
     out = {
@@ -179,6 +182,11 @@ def surface_metrics(
             out["fscore_observed_1mm"] = fscore(d_rt, obs, 0.001)
             out["completeness_observed_2mm"] = float(np.mean(obs < 0.002))
             out["completeness_observed_1mm"] = float(np.mean(obs < 0.001))
+    if observable is not None:
+        can = np.asarray(observable, bool)
+        out["observable_fraction"] = float(np.mean(can))
+        if can.any():
+            out["completeness_observable_2mm"] = float(np.mean(d_tr[can] < 0.002))
     return {k: float(v) for k, v in out.items()}
 
 
@@ -197,11 +205,13 @@ def evaluate_surface(
     seed: int = 0,
     max_incidence_rad: float = math.radians(80.0),
     truth_samples: tuple[SurfaceSamples, np.ndarray | None] | None = None,
+    observable: np.ndarray | None = None,
 ) -> dict[str, float]:
     """Metrics of a result (its points, and its mesh when it is one: then the result -> truth
     direction uses the mesh's own area-uniform samples) against the true mesh.
     `truth_samples`: (samples, observed mask) from `truth_sampling` with the same arguments,
-    to evaluate several results against one truth without sampling and ray casting again."""
+    to evaluate several results against one truth without sampling and ray casting again;
+    `observable`: the mask of those samples some camera could see at all (`surface_metrics`)."""
     samples, observed = truth_samples or truth_sampling(
         truth, camera_centres_W, n_samples, seed, max_incidence_rad
     )
@@ -211,7 +221,7 @@ def evaluate_surface(
     else:
         d_tr = distances_to_points(samples.points, result_points)
     d_rt = distances_to_mesh(result_points, truth)
-    return surface_metrics(d_rt, d_tr, observed)
+    return surface_metrics(d_rt, d_tr, observed, observable)
 
 
 def truth_sampling(

@@ -18,6 +18,7 @@ from reconstruction.evaluation.metrics import (
     truth_sampling,
     visible_mask,
 )
+from reconstruction.evaluation.observable import observable_mask, working_distance_m
 from reconstruction.hangings.alignment import alignment_error
 from reconstruction.pipeline import ReconstructionResult
 from reconstruction.surfaces.fixture import points_on_fixture
@@ -115,20 +116,24 @@ def hangings_report(result, views: Gathered, to_first) -> dict:
 
 
 def evaluate(
-    result: ReconstructionResult, truth, surface, samples: int, truth_samples, fixtures=()
+    result: ReconstructionResult,
+    truth,
+    surface,
+    samples: int,
+    truth_samples,
+    fixtures=(),
+    observable=None,
 ) -> dict:
-    """Metrics of every surface against the truth (`truth_samples`: from `observed_samples`),
-    the points on the fixture in each (`fixtures`: every hanging's rod line in the first
-    hanging's frame), and the hand-eye error before/after."""
+    """Metrics of every surface against the truth (`truth_samples`: from `observed_samples`;
+    `observable`: which of them a camera could see at all, from `observable_samples`), the
+    points on the fixture in each (`fixtures`: every hanging's rod line in the first hanging's
+    frame), and the hand-eye error before/after."""
     out: dict = {"surfaces": {}}
     results = {name: TriangleSurface(m.vertices, m.triangles) for name, m in result.meshes.items()}
+    given = {"n_samples": samples, "truth_samples": truth_samples, "observable": observable}
     for name, mesh in results.items():
-        out["surfaces"][name] = evaluate_surface(
-            None, surface, result_mesh=mesh, n_samples=samples, truth_samples=truth_samples
-        )
-    out["surfaces"]["fused_cloud"] = evaluate_surface(
-        result.fused.points_W, surface, n_samples=samples, truth_samples=truth_samples
-    )
+        out["surfaces"][name] = evaluate_surface(None, surface, result_mesh=mesh, **given)
+    out["surfaces"]["fused_cloud"] = evaluate_surface(result.fused.points_W, surface, **given)
     points = {name: m.vertices for name, m in result.meshes.items()}
     for name, p in {**points, "fused_cloud": result.fused.points_W}.items():
         on = sum(points_on_fixture(p, surface.vertices, line) for line in fixtures)
@@ -148,6 +153,16 @@ def observed_samples(views: Gathered, processing: ProcessingConfig, to_first, le
     return truth_sampling(views.truths[0][1], eyes, processing.metric_samples)
 
 
+def observable_samples(views: Gathered, to_first, truth_samples, left_out=()) -> np.ndarray | None:
+    """Which of `truth_samples`' samples a camera at the scan's working distance could see from
+    some direction around the object (None without true views)."""
+    eyes = list(_true_eyes(views, to_first, left_out).values())
+    if not eyes:
+        return None
+    surface = views.truths[0][1]
+    return observable_mask(truth_samples[0], surface, working_distance_m(surface, eyes))
+
+
 def truth_metrics(
     result, views: Gathered, processing: ProcessingConfig, to_first, truth_samples=None
 ) -> dict:
@@ -162,8 +177,9 @@ def truth_metrics(
         for h, (line, T) in enumerate(zip(views.fixtures, to_first or [], strict=False))
         if h not in result.left_out
     ]
+    observable = observable_samples(views, to_first, truth_samples, result.left_out)
     metrics = evaluate(
-        result, truth[0], truth[1], processing.metric_samples, truth_samples, fixtures
+        result, truth[0], truth[1], processing.metric_samples, truth_samples, fixtures, observable
     )
     primary = metrics["surfaces"].get(processing.primary_surface)
     if primary is None:

@@ -303,9 +303,14 @@ def _reconstruct(
         report["unseen_area_m2"] = result.coverage.unseen_area_m2
         closed = result.meshes.get("poisson_closed")
         if closed is not None:
+            quality = mesh_quality(closed)
             report["closed_model"] = {
-                "watertight": mesh_quality(closed).watertight,
+                "watertight": quality.watertight,
                 "filled_area_m2": closed.filled_area_m2,
+                # The share of the closed surface no data hold (bridged over what no view saw).
+                "interpolated_fraction": closed.filled_area_m2 / quality.area_m2
+                if quality.area_m2 > 0
+                else math.nan,
             }
         with timer("write"):
             report.update(_write_model(result, processing, staging, eyes))

@@ -75,6 +75,25 @@ FIGURES: dict[str, Figure] = {
         0.8,
         True,
     ),
+    "observable_fraction": Figure(
+        "observable fraction",
+        "",
+        "share of the true surface a camera at the scan's distance could see from some "
+        "direction all round (facing within 80 deg, unoccluded): what any scan can show; the "
+        "rest (inside a spout, a slot) the closed model can only bridge",
+        0.99,
+        0.95,
+        True,
+    ),
+    "completeness_observable_2mm": Figure(
+        "completeness at 2 mm, observable surface",
+        "",
+        "share of the observable true surface within 2 mm of the model: whole-object "
+        "completeness without what no camera can see",
+        0.97,
+        0.9,
+        True,
+    ),
     "chamfer_mm": Figure(
         "Chamfer, whole object",
         "mm",
@@ -131,6 +150,8 @@ TRUTH_FIGURES = (
     "fscore_1mm",
     "fscore_2mm",
     "completeness_2mm",
+    "observable_fraction",
+    "completeness_observable_2mm",
 )
 
 

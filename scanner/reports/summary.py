@@ -150,6 +150,17 @@ def _metric_lines(report: dict) -> list[str]:
             "is why the whole-object Chamfer is far larger than the accuracy. "
             "A further hanging (`--hangings 2`) shows the rest.",
         ]
+    if "observable_fraction" in report and "coverage_estimate" in report:
+        hidden = 1 - report["observable_fraction"]
+        lines += [
+            "",
+            f"Observable at all: {_fmt(100 * report['observable_fraction'], 1)} % of the true "
+            "surface faces a camera at the scan's distance from some direction all round; the "
+            f"other {_fmt(100 * hidden, 1)} % no scan of this object can see, and the closed "
+            "model can only bridge it. Against that ceiling the scan saw "
+            f"{_fmt(100 * report['observed_fraction'], 1)} % of the surface and its own "
+            f"coverage estimate (no truth) reads {_fmt(100 * report['coverage_estimate'], 1)} %.",
+        ]
     return lines
 
 
@@ -278,7 +289,13 @@ def write_summary(report: dict, out: Path) -> Path:
             f"Closed model (`mesh_poisson_closed`, for collision models and prints): "
             f"{'watertight' if closed['watertight'] else 'NOT watertight'}; "
             f"{_fmt(1e4 * closed['filled_area_m2'], 1)} cm^2 of it bridge where no data are "
-            "(filled, not seen).",
+            "(filled, not seen)"
+            + (
+                f": {_fmt(100 * closed['interpolated_fraction'], 1)} % of its area is "
+                "interpolated, not measured."
+                if "interpolated_fraction" in closed
+                else "."
+            ),
         ]
     lines += _surface_lines(report)
     lines += _hangings_lines(report)
