@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import re
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -64,6 +65,9 @@ class ArmPlant:
         return self.flange_frame.CalcPoseInWorld(context)
 
 
+_XACRO_FIND_LOCK = threading.Lock()
+
+
 @contextlib.contextmanager
 def _finds_from(packages: dict[str, Path], arm_file: ArmFile):
     """xacro's `$(find pkg)` answered from the package map while expanding (xacro asks
@@ -78,12 +82,14 @@ def _finds_from(packages: dict[str, Path], arm_file: ArmFile):
             )
         return str(packages[package])
 
-    original = substitution_args._eval_find
-    substitution_args._eval_find = find
-    try:
-        yield
-    finally:
-        substitution_args._eval_find = original
+    # xacro keeps the lookup in a module global: one expansion at a time may replace it.
+    with _XACRO_FIND_LOCK:
+        original = substitution_args._eval_find
+        substitution_args._eval_find = find
+        try:
+            yield
+        finally:
+            substitution_args._eval_find = original
 
 
 def _expand_xacro(arm_file: ArmFile) -> str:
