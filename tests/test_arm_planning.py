@@ -15,7 +15,9 @@ from planners.collision import CollisionChecker
 from planners.planner import Planner, PlannerConfig, Trajectory
 from reconstruction.stereo.camera_model import default_stereo_camera
 from robots.arms.arm import load_arm
+from robots.arms.default import DEFAULT_ARM
 from robots.models.camera_tool import nominal_X_FC
+from robots.models.kinematics import Kinematics
 from robots.models.workcell import WorkcellConfig, build_workcell
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,6 +73,27 @@ def assert_pose_close(X_a: RigidTransform, X_b: RigidTransform) -> None:
     angle = RotationMatrix(X_a.rotation().matrix() @ X_b.rotation().matrix().T).ToAngleAxis()
     assert abs(angle.angle()) < POSE_ROTATION_TOL_RAD
     assert np.linalg.norm(X_a.translation() - X_b.translation()) < POSE_TRANSLATION_TOL_M
+
+
+@pytest.mark.parametrize("which", ["default", "ur5e"])
+def test_closed_form_and_file_arms_answer_one_interface(which, ur5e):
+    arm = {"default": DEFAULT_ARM, "ur5e": ur5e}[which]
+    assert arm.joint_count == len(arm.joint_names) == 6
+    for limits in (arm.lower, arm.upper, arm.velocity, arm.acceleration):
+        assert limits.shape == (6,) and not limits.flags.writeable
+    assert np.all(arm.lower < arm.upper) and np.all(arm.velocity > 0)
+    assert np.all(arm.acceleration > 0)
+    # The arm's own FK (closed form or its plant) against the model it adds to a plant.
+    kinematics = Kinematics(arm)
+    q = np.array([0.3, -1.2, 1.1, -0.4, 0.7, 0.2])
+    X_WF = arm.X_WF(q)
+    assert_pose_close(X_WF, RigidTransform(kinematics.X_WF(q)))
+    solutions = arm.ik(X_WF, q)
+    assert solutions.shape[1] == 6
+    assert np.min(np.abs(solutions - q).max(axis=1)) < 1e-6
+    for q_ik in solutions:
+        assert arm.within_limits(q_ik)
+        assert_pose_close(arm.X_WF(q_ik), X_WF)
 
 
 def test_ur5e_arm_builds_the_cell_the_planner_checks(ur5e, planner):
