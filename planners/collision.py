@@ -1,4 +1,4 @@
-"""Collision checking of RX60 configurations against the work cell, with Drake.
+"""Collision checking of the arm's configurations against the work cell, with Drake.
 
 One `CollisionChecker` wraps Drake's `SceneGraphCollisionChecker` on the planner's `RobotDiagram`
 (robot, camera tool, table, fence, radiator, object keep-out sphere and its rod). A configuration

@@ -18,8 +18,8 @@ import numpy as np
 from planners.collision import CollisionChecker
 from planners.timing import Trajectory
 from planners.validation import ValidationReport, dense_times
+from robots.arms.arm import Arm
 from robots.drivers.interfaces import JointTrajectory
-from robots.models.rx60 import RX60
 
 
 def chord_deviation_rad(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -82,7 +82,7 @@ def validate_polyline(
     q_start: np.ndarray,
     q_goal: np.ndarray,
     checker: CollisionChecker,
-    robot: RX60,
+    arm: Arm,
     max_joint_step_rad: float,
 ) -> ValidationReport:
     """The dense check of the joint-linear path through `waypoints`: ends, joint limits and
@@ -97,7 +97,7 @@ def validate_polyline(
         return report("endpoints", "the waypoints do not start/end at the requested q")
     if step > max_joint_step_rad * (1 + 1e-9):
         return report("resolution", f"samples {step:.6f} rad apart")
-    if np.any(q < robot.lower) or np.any(q > robot.upper):
+    if np.any(q < arm.lower) or np.any(q > arm.upper):
         return report("position_limit", "a sample leaves the joint limits")
     free = checker.are_free(q)
     if not free.all():
@@ -109,7 +109,7 @@ def validate_polyline(
 def joint_linear_trajectory(
     trajectory: Trajectory,
     checker: CollisionChecker,
-    robot: RX60,
+    arm: Arm,
     tolerance_rad: float,
     max_joint_step_rad: float,
 ) -> JointTrajectory | ValidationReport:
@@ -117,7 +117,7 @@ def joint_linear_trajectory(
     controller will run them, or the failed check's report."""
     times, q = chord_waypoints(trajectory, tolerance_rad, max_joint_step_rad)
     report = validate_polyline(
-        q, trajectory.q_start, trajectory.q_goal, checker, robot, max_joint_step_rad
+        q, trajectory.q_start, trajectory.q_goal, checker, arm, max_joint_step_rad
     )
     if not report.ok:
         return report

@@ -1,6 +1,6 @@
 """The planning API the scan calls: reachable views, collision-free time-optimal moves, tours.
 
-    planner = Planner(workcell, X_FC, X_CR, PlannerConfig(cache_dir=...))
+    planner = Planner(workcell, X_FC, X_CR, PlannerConfig(cache_dir=...), arm)
     qs = planner.reachable(viewpoint, q_now)          # collision-free IK solutions, best first
     result = planner.plan(q_now, qs[0])               # Trajectory | PlanFailure
     planner.estimate_duration_s(q_a, q_b)             # for ordering tours (planners.tour)
@@ -56,8 +56,9 @@ from planners.timing import (
 from planners.validation import ValidationReport, validate_trajectory
 from reconstruction.common.checks import check_fields, integer, positive
 from reconstruction.common.errors import ScannerError
+from robots.arms.arm import Arm
+from robots.arms.default import DEFAULT_ARM
 from robots.drivers.interfaces import JointTrajectory
-from robots.models.rx60 import RX60, rx60_urdf
 from robots.models.workcell import Workcell, keep_out_radius_m
 
 PLAN_FAILURE_REASONS = ("start_invalid", "goal_invalid", "no_path", "validation_failed")
@@ -146,17 +147,9 @@ class PlanFailure:
             raise ValueError(f"unknown reason {self.reason!r}; valid: {PLAN_FAILURE_REASONS}")
 
 
-def _as_configuration(q, name: str) -> np.ndarray:
-    q = np.asarray(q, dtype=float) if not isinstance(q, np.ndarray) else q.astype(float)
-    if q.shape != (6,):
-        raise ScannerError(f"{name}: expected 6 joint positions (rad), got shape {q.shape}")
-    if not np.all(np.isfinite(q)):
-        raise ScannerError(f"{name}: joint positions must be finite, got {q.tolist()}")
-    return q
-
-
 class Planner:
-    """Plans collision-free, time-optimal RX60 motions in one work cell (see module docstring)."""
+    """Plans collision-free, time-optimal motions of the arm in one work cell (see module
+    docstring). The work cell must have been built with the same arm."""
 
     def __init__(
         self,
@@ -164,41 +157,52 @@ class Planner:
         X_FC: np.ndarray,
         X_CR: np.ndarray,
         config: PlannerConfig,
-        robot: RX60 = RX60(),
+        arm: Arm = DEFAULT_ARM,
     ) -> None:
         self.workcell = workcell
         self.config = config
-        self.robot = robot
+        self.arm = arm
         self.X_FC = np.array(X_FC, float)
         self.X_MC = rig_centre_offset(np.asarray(X_CR, float))
-        self._check_model_matches(workcell, robot)
-        self._v = np.array(robot.velocity_limits_rad_s)
-        self._a = np.array(robot.acceleration_limits_rad_s2)
+        self._check_model_matches(workcell, arm)
+        self._v = arm.velocity
+        self._a = arm.acceleration
         self.checker = CollisionChecker(workcell, config.padding_m, config.edge_step_rad)
         seed_ompl(config.seed)
-        self.space = OmplSpace(robot, self.checker)
+        self.space = OmplSpace(arm, self.checker)
         self.roadmap_key = cache_key(self._key_parts())
         self.roadmap, self.roadmap_from_cache = self._load_or_build()
         self.graph = RoadmapGraph(self.roadmap, self._v)
 
     # --- set-up ------------------------------------------------------------------------------
 
-    def _check_model_matches(self, workcell: Workcell, robot: RX60) -> None:
+    def _check_model_matches(self, workcell: Workcell, arm: Arm) -> None:
         plant = workcell.plant
-        if plant.num_positions() != 6:
+        if plant.num_positions() != arm.joint_count:
             raise ScannerError(
-                "planner: the work cell must have the RX60 as its only moving model "
-                f"(6 joints), it has {plant.num_positions()} positions"
+                f"planner: the work cell must have the arm ({arm.name}) as its only moving model "
+                f"({arm.joint_count} joints), it has {plant.num_positions()} positions"
             )
         lo, hi = plant.GetPositionLowerLimits(), plant.GetPositionUpperLimits()
-        if not (np.allclose(lo, robot.lower) and np.allclose(hi, robot.upper)):
-            raise ScannerError("planner: the RX60 given differs from the one in the work cell")
+        if not (np.allclose(lo, arm.lower) and np.allclose(hi, arm.upper)):
+            raise ScannerError(
+                f"planner: the arm given ({arm.name}) differs from the one in the work cell"
+            )
+
+    def _configuration(self, q, name: str) -> np.ndarray:
+        q = np.asarray(q, dtype=float) if not isinstance(q, np.ndarray) else q.astype(float)
+        n = self.arm.joint_count
+        if q.shape != (n,):
+            raise ScannerError(f"{name}: expected {n} joint positions (rad), got shape {q.shape}")
+        if not np.all(np.isfinite(q)):
+            raise ScannerError(f"{name}: joint positions must be finite, got {q.tolist()}")
+        return q
 
     def _key_parts(self) -> dict[str, str]:
         """Everything the roadmap depends on; any change gives another key (a new roadmap)."""
         return {
-            "urdf": rx60_urdf(self.robot),
-            "robot": repr(self.robot),
+            "urdf": self.arm.model_text,
+            "robot": self.arm.identity,
             "cell": repr(self.workcell.config),
             "collision_geometry": self.checker.fingerprint(),
             "X_FC": np.round(self.X_FC, 12).tobytes().hex(),
@@ -210,7 +214,7 @@ class Planner:
     def _load_or_build(self) -> tuple[Roadmap, bool]:
         cache_dir = self.config.cache_dir
         if cache_dir is not None:
-            cached = load_roadmap(Path(cache_dir), self.roadmap_key)
+            cached = load_roadmap(Path(cache_dir), self.roadmap_key, self.arm.joint_count)
             if cached is not None:
                 return cached, True
         roadmap = build_roadmap(
@@ -228,13 +232,13 @@ class Planner:
 
     def is_collision_free(self, q) -> bool:
         """Within joint limits and no pair closer than the padding."""
-        q = _as_configuration(q, "q")
-        return self.robot.within_limits(q) and self.checker.is_free(q)
+        q = self._configuration(q, "q")
+        return self.arm.within_limits(q) and self.checker.is_free(q)
 
     def estimate_duration_s(self, q_a, q_b) -> float:
         """Fastest straight rest-to-rest move (exact if the straight move is free, a lower bound
         otherwise); microseconds, for ordering tours."""
-        q_a, q_b = _as_configuration(q_a, "q_a"), _as_configuration(q_b, "q_b")
+        q_a, q_b = self._configuration(q_a, "q_a"), self._configuration(q_b, "q_b")
         return float(straight_line_time_s(q_b - q_a, self._v, self._a))
 
     def reachable(
@@ -248,7 +252,7 @@ class Planner:
         rolls_rad: camera rolls about the optical axis to try (None: the viewpoint's own roll).
         Ordered by estimated motion time from q_current; empty when nothing is reachable.
         """
-        q_current = _as_configuration(q_current, "q_current")
+        q_current = self._configuration(q_current, "q_current")
         self._check_viewpoint(viewpoint)
         rolls = [viewpoint.roll_rad] if rolls_rad is None else [float(r) for r in rolls_rad]
         if not all(math.isfinite(r) for r in rolls):
@@ -256,7 +260,7 @@ class Planner:
         solutions: list[np.ndarray] = []
         for roll in rolls:
             X_WC = camera_pose(dataclasses.replace(viewpoint, roll_rad=roll), self.X_MC)
-            for q in ik_camera(self.robot, X_WC, self.X_FC, q_current):
+            for q in ik_camera(self.arm, X_WC, self.X_FC, q_current):
                 # Rolls 2 pi apart (or a symmetric roll list) give the same configuration twice
                 # (numpy.allclose's test, on all earlier solutions at once: this runs for
                 # thousands of viewpoint candidates).
@@ -300,9 +304,9 @@ class Planner:
             )
 
     def _configuration_problem(self, q: np.ndarray) -> str | None:
-        if not self.robot.within_limits(q):
-            lo, hi = self.robot.lower, self.robot.upper
-            bad = [i + 1 for i in range(6) if not lo[i] <= q[i] <= hi[i]]
+        if not self.arm.within_limits(q):
+            lo, hi = self.arm.lower, self.arm.upper
+            bad = [i + 1 for i in range(self.arm.joint_count) if not lo[i] <= q[i] <= hi[i]]
             return f"outside the joint limits (joints {bad})"
         if not self.checker.is_free(q):
             return f"in collision, {self.checker.describe(q)}"
@@ -321,8 +325,8 @@ class Planner:
         return self._plan(q_start, q_goal, use_roadmap=False)
 
     def _plan(self, q_start, q_goal, use_roadmap: bool) -> Trajectory | PlanFailure:
-        q_start = _as_configuration(q_start, "q_start")
-        q_goal = _as_configuration(q_goal, "q_goal")
+        q_start = self._configuration(q_start, "q_start")
+        q_goal = self._configuration(q_goal, "q_goal")
         problem = self._configuration_problem(q_start)
         if problem:
             return PlanFailure("start_invalid", f"start {problem}")
@@ -386,7 +390,7 @@ class Planner:
                 t0 = time.perf_counter()
                 try:
                     trajectory = time_parameterise(
-                        path, self.workcell.plant, self.robot, corners, gridpoints, fraction
+                        path, self.workcell.plant, self.arm, corners, gridpoints, fraction
                     )
                 except RuntimeError as error:  # Drake reports a degenerate path this way
                     trajectory = None
@@ -425,7 +429,7 @@ class Planner:
             return trajectory.to_joint_trajectory()
         c = self.config
         step, tolerance = c.max_joint_step_rad, c.chord_tolerance_rad
-        result = joint_linear_trajectory(trajectory, self.checker, self.robot, tolerance, step)
+        result = joint_linear_trajectory(trajectory, self.checker, self.arm, tolerance, step)
         if isinstance(result, ValidationReport):
             return PlanFailure(
                 "validation_failed", f"joint-linear path: {result.failed_check} ({result.detail})"
@@ -436,10 +440,10 @@ class Planner:
         """The independent dense check every returned trajectory has passed."""
         return validate_trajectory(
             trajectory,
-            _as_configuration(q_start, "q_start"),
-            _as_configuration(q_goal, "q_goal"),
+            self._configuration(q_start, "q_start"),
+            self._configuration(q_goal, "q_goal"),
             self.checker,
-            self.robot,
+            self.arm,
             self.config.max_joint_step_rad,
             self.config.limit_tolerance,
         )

@@ -36,7 +36,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from planners.collision import CollisionChecker
-from robots.models.rx60 import RX60
+from robots.arms.arm import Arm
 
 # Bump when the stored format or the way a roadmap is built changes.
 ROADMAP_FORMAT = 2
@@ -49,7 +49,7 @@ ou.setLogLevel(ou.LOG_WARN)
 
 @dataclass(frozen=True, eq=False)
 class Roadmap:
-    """vertices_rad (N, 6) collision-free milestones; edges (E, 2) vertex indices i < j, NOT
+    """vertices_rad (N, n) collision-free milestones; edges (E, 2) vertex indices i < j, NOT
     checked (each is proven when a query first uses it); build_s the wall time OMPL spent
     building it."""
 
@@ -75,16 +75,18 @@ class _DeferredMotionValidator(ob.MotionValidator):
 class _DrakeMotionValidator(ob.MotionValidator):
     """OMPL asks whether the straight motion a -> b is valid; Drake answers at fine steps."""
 
-    def __init__(self, si: ob.SpaceInformation, checker: CollisionChecker) -> None:
+    def __init__(self, si: ob.SpaceInformation, checker: CollisionChecker, joints: int) -> None:
         super().__init__(si)
         self._checker = checker
+        self._joints = joints
 
     def checkMotion(self, a, b) -> bool:  # noqa: N802 (OMPL's name)
-        return self._checker.edge_free(state_to_array(a), state_to_array(b))
+        n = self._joints
+        return self._checker.edge_free(state_to_array(a, n), state_to_array(b, n))
 
 
-def state_to_array(state) -> np.ndarray:
-    return np.array([state[i] for i in range(6)])
+def state_to_array(state, joints: int) -> np.ndarray:
+    return np.array([state[i] for i in range(joints)])
 
 
 def _fill_state(state, q: np.ndarray):
@@ -94,24 +96,28 @@ def _fill_state(state, q: np.ndarray):
 
 
 class OmplSpace:
-    """The RX60 joint-limit box as an OMPL state space, validity and motions checked by Drake."""
+    """The arm's joint-limit box as an OMPL state space, validity and motions checked by Drake."""
 
-    def __init__(self, robot: RX60, checker: CollisionChecker) -> None:
-        self.space = ob.RealVectorStateSpace(6)
-        bounds = ob.RealVectorBounds(6)
-        for i, (lo, hi) in enumerate(zip(robot.lower_limits_rad, robot.upper_limits_rad)):
+    def __init__(self, arm: Arm, checker: CollisionChecker) -> None:
+        self.joints = n = arm.joint_count
+        self.space = ob.RealVectorStateSpace(n)
+        bounds = ob.RealVectorBounds(n)
+        for i, (lo, hi) in enumerate(zip(arm.lower.tolist(), arm.upper.tolist())):
             bounds.setLow(i, lo)
             bounds.setHigh(i, hi)
         self.space.setBounds(bounds)
         self.si = ob.SpaceInformation(self.space)
         # OMPL's validity callback must return a Python bool (numpy.bool_ raises bad_cast).
-        self.si.setStateValidityChecker(lambda s: checker.is_free(state_to_array(s)))
-        self.motion_validator = _DrakeMotionValidator(self.si, checker)
+        self.si.setStateValidityChecker(lambda s: checker.is_free(state_to_array(s, n)))
+        self.motion_validator = _DrakeMotionValidator(self.si, checker, n)
         self.si.setMotionValidator(self.motion_validator)
         self.si.setup()
 
     def state(self, q: np.ndarray):
         return _fill_state(self.si.allocState(), q)
+
+    def array(self, state) -> np.ndarray:
+        return state_to_array(state, self.joints)
 
     def path(self, waypoints: list[np.ndarray]) -> og.PathGeometric:
         path = og.PathGeometric(self.si)
@@ -156,10 +162,10 @@ def build_roadmap(
     data = ob.PlannerData(space.si)
     prm.getPlannerData(data)
     n = data.numVertices()
-    vertices = np.array([state_to_array(data.getVertex(i).getState()) for i in range(n)])
+    vertices = np.array([space.array(data.getVertex(i).getState()) for i in range(n)])
     edges = {(min(i, j), max(i, j)) for i in range(n) for j in data.getEdges(i)}
     edge_array = np.array(sorted(edges), dtype=np.int64).reshape(-1, 2)
-    return Roadmap(vertices.reshape(-1, 6), edge_array, build_s, key)
+    return Roadmap(vertices.reshape(-1, space.joints), edge_array, build_s, key)
 
 
 # --- cache -----------------------------------------------------------------------------------
@@ -175,8 +181,9 @@ def cache_path(cache_dir: Path, key: str) -> Path:
     return Path(cache_dir) / f"roadmap-{key[:32]}.npz"
 
 
-def load_roadmap(cache_dir: Path, key: str) -> Roadmap | None:
-    """The cached roadmap for this key, or None (absent, damaged, or written for another key)."""
+def load_roadmap(cache_dir: Path, key: str, joints: int) -> Roadmap | None:
+    """The cached roadmap for this key over `joints` joints, or None (absent, damaged, or
+    written for another key)."""
     path = cache_path(cache_dir, key)
     try:
         with np.load(path, allow_pickle=False) as data:
@@ -188,7 +195,7 @@ def load_roadmap(cache_dir: Path, key: str) -> Roadmap | None:
         return None
     well_formed = (
         vertices.ndim == 2
-        and vertices.shape[1] == 6
+        and vertices.shape[1] == joints
         and np.all(np.isfinite(vertices))
         and edges.ndim == 2
         and edges.shape[1] == 2
@@ -225,7 +232,7 @@ def save_roadmap(cache_dir: Path, roadmap: Roadmap) -> Path:
 
 
 def cruise_time_s(q_a: np.ndarray, q_b: np.ndarray, velocity_rad_s: np.ndarray) -> np.ndarray:
-    """Edge cost: time at full speed of the slowest joint, (...,6) -> (...)."""
+    """Edge cost: time at full speed of the slowest joint, (..., n) -> (...)."""
     return np.max(np.abs(np.asarray(q_b) - np.asarray(q_a)) / velocity_rad_s, axis=-1)
 
 
@@ -347,7 +354,7 @@ def solve_rrtconnect(
     if status.getStatus() != ob.PlannerStatus.EXACT_SOLUTION:
         return None
     path = pdef.getSolutionPath()
-    return [state_to_array(s) for s in path.getStates()]
+    return [space.array(s) for s in path.getStates()]
 
 
 def shortcut(space: OmplSpace, waypoints: list[np.ndarray], max_steps: int) -> list[np.ndarray]:
@@ -363,6 +370,6 @@ def shortcut(space: OmplSpace, waypoints: list[np.ndarray], max_steps: int) -> l
     if path.getStateCount() > 2:
         simplifier.partialShortcutPath(path, max_steps)
         simplifier.reduceVertices(path, max_steps)
-    out = [state_to_array(s) for s in path.getStates()]
+    out = [space.array(s) for s in path.getStates()]
     out[0], out[-1] = np.asarray(waypoints[0], float), np.asarray(waypoints[-1], float)
     return out

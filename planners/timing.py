@@ -27,8 +27,8 @@ from pydrake.trajectories import (
     Trajectory as DrakeTrajectory,
 )
 
+from robots.arms.arm import Arm
 from robots.drivers.interfaces import JointTrajectory
-from robots.models.rx60 import RX60
 
 SMOOTH = "smooth"
 STOP = "stop"
@@ -150,11 +150,11 @@ def spline_curve(path_rad: np.ndarray) -> PiecewisePolynomial:
     )
 
 
-def _toppra(curve, plant, robot: RX60, grid: np.ndarray, limit_fraction: float):
+def _toppra(curve, plant, arm: Arm, grid: np.ndarray, limit_fraction: float):
     """s(t) of the fastest traversal of curve(s) from rest to rest, or None."""
     toppra = Toppra(curve, plant, grid)
-    v = limit_fraction * np.array(robot.velocity_limits_rad_s)
-    a = limit_fraction * np.array(robot.acceleration_limits_rad_s2)
+    v = limit_fraction * arm.velocity
+    a = limit_fraction * arm.acceleration
     toppra.AddJointVelocityLimit(-v, v)
     toppra.AddJointAccelerationLimit(-a, a)
     return toppra.SolvePathParameterization()
@@ -163,7 +163,7 @@ def _toppra(curve, plant, robot: RX60, grid: np.ndarray, limit_fraction: float):
 def time_parameterise(
     path_rad: np.ndarray,
     plant,
-    robot: RX60,
+    arm: Arm,
     corners: str,
     gridpoints_per_segment: int,
     limit_fraction: float,
@@ -184,7 +184,7 @@ def time_parameterise(
                 [np.linspace(0.0, breaks[-1], gridpoints_per_segment * segments), breaks]
             )
         )
-        s_of_t = _toppra(curve, plant, robot, grid, limit_fraction)
+        s_of_t = _toppra(curve, plant, arm, grid, limit_fraction)
         if s_of_t is None:
             return None
         q_of_t = PathParameterizedTrajectory(curve, s_of_t)
@@ -194,7 +194,7 @@ def time_parameterise(
             # s in [0, 1] along each segment: break spacing never depends on its length.
             line = PiecewisePolynomial.FirstOrderHold([0.0, 1.0], np.column_stack([q_a, q_b]))
             grid = np.linspace(0.0, 1.0, gridpoints_per_segment)
-            s_of_t = _toppra(line, plant, robot, grid, limit_fraction)
+            s_of_t = _toppra(line, plant, arm, grid, limit_fraction)
             if s_of_t is None:
                 return None
             s_of_t.shiftRight(t_start)

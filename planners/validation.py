@@ -18,7 +18,7 @@ import numpy as np
 
 from planners.collision import CollisionChecker
 from planners.timing import Trajectory
-from robots.models.rx60 import RX60
+from robots.arms.arm import Arm
 
 # Refinement rounds; each one at least doubles the resolution where it was too coarse.
 MAX_REFINEMENTS = 12
@@ -100,7 +100,7 @@ def validate_trajectory(
     q_start: np.ndarray,
     q_goal: np.ndarray,
     checker: CollisionChecker,
-    robot: RX60,
+    arm: Arm,
     max_joint_step_rad: float,
     limit_tolerance: float,
 ) -> ValidationReport:
@@ -109,8 +109,7 @@ def validate_trajectory(
     q = trajectory.samples(times)
     qd = trajectory.derivatives(times, 1)
     qdd = trajectory.derivatives(times, 2)
-    v = np.array(robot.velocity_limits_rad_s)
-    a = np.array(robot.acceleration_limits_rad_s2)
+    v, a = arm.velocity, arm.acceleration
     step = float(np.abs(np.diff(q, axis=0)).max()) if len(q) > 1 else 0.0
     v_ratio = float((np.abs(qd) / v).max())
     a_ratio = float((np.abs(qdd) / a).max())
@@ -128,7 +127,7 @@ def validate_trajectory(
         return report("endpoints", "the trajectory does not start and end at rest")
     if step > max_joint_step_rad:
         return report("resolution", f"sampling could not reach {max_joint_step_rad} rad steps")
-    if np.any(q < robot.lower) or np.any(q > robot.upper):
+    if np.any(q < arm.lower) or np.any(q > arm.upper):
         return report("position_limit", "a sample leaves the joint limits")
     if v_ratio > 1 + limit_tolerance:
         return report("velocity_limit", f"peak velocity {v_ratio:.3f} x the limit")

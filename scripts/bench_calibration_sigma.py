@@ -54,9 +54,9 @@ def _axes(values: np.ndarray) -> dict:
 
 
 def _sigma_and_offsets(seeds: int, kinematic_error_m, solver) -> dict:
-    from planners.ik import arm_model
     from reconstruction.calibration.eye_in_hand import calibrate_hand_eye
     from reconstruction.common.transforms import invert, pose_difference, pose_to_twist
+    from robots.arms.rx60 import arm_model
 
     config = CalibrateConfig()
     stereo = config.camera.stereo_camera()

@@ -47,7 +47,7 @@ ROLLS_RAD = (-math.pi / 6, 0.0, math.pi / 6)
 def reachable_views(planner: Planner, directions: np.ndarray):
     """(viewpoint configurations per reachable view, poses solved per second, worst IK error)."""
     c = np.array(planner.workcell.config.object_center_m)
-    kin = Kinematics(planner.robot)
+    kin = Kinematics(planner.arm)
     X_MC = rig_centre_offset(default_stereo_camera().X_CR)
     views, solved, elapsed = [], 0, 0.0
     worst_p, worst_r = 0.0, 0.0

@@ -7,7 +7,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from planners.ik import arm_model
 from reconstruction.calibration.eye_in_hand import calibrate_hand_eye
 from reconstruction.calibration.held_out import (
     Solution,
@@ -19,6 +18,7 @@ from reconstruction.calibration.held_out import (
 from reconstruction.calibration.refine import refine_on_board
 from reconstruction.calibration.robot_errors import ArmModel
 from reconstruction.common.transforms import pose_difference
+from robots.arms.rx60 import arm_model
 from scanner.calibrate.config import CalibrateConfig
 from scanner.calibrate.sigma_check import render_free_observations
 

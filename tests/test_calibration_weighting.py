@@ -7,16 +7,16 @@ import math
 import numpy as np
 import pytest
 
-from planners.ik import camera_pose, fk_flange, ik_camera, rig_centre_offset
+from planners.ik import camera_pose, ik_camera, rig_centre_offset
 from reconstruction.calibration.boards import BoardSpec, Detection
 from reconstruction.calibration.eye_in_hand import calibrate_hand_eye
 from reconstruction.calibration.observations import PoseObservation
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.transforms import invert, pose_difference, transform_points
 from reconstruction.stereo.camera_model import StereoDesign, project_points
+from robots.arms.rx60 import RX60, fk_flange, rx60_arm
 from robots.models.calibration_board import BoardPlacement
 from robots.models.camera_tool import nominal_X_FC
-from robots.models.rx60 import RX60
 from robots.simulation.truth import ErrorModel, sample_truth
 from scanner.calibrate.stations import StationConfig, plan_stations
 
@@ -32,14 +32,14 @@ def stations():
     stereo = StereoDesign().stereo_camera()
     X_FC = nominal_X_FC(stereo.baseline_m)
     X_MC = rig_centre_offset(stereo.X_CR)
-    robot = RX60()
+    arm = rx60_arm()
     plan = plan_stations(
         StationConfig(),
         BOARD,
         BoardPlacement().X_WB(BOARD),
         stereo,
         X_FC,
-        lambda viewpoint: ik_camera(robot, camera_pose(viewpoint, X_MC), X_FC),
+        lambda viewpoint: ik_camera(arm, camera_pose(viewpoint, X_MC), X_FC),
         HOME_Q,
     )
     return [s.q for s in plan.stations]

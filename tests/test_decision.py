@@ -6,13 +6,13 @@ import numpy as np
 
 from planners.ik import Viewpoint
 from planners.planner import PlanFailure
+from robots.arms.rx60 import RX60
 from robots.drivers.interfaces import (
     CaptureError,
     JointTrajectory,
     StereoCameraDriver,
     StereoImages,
 )
-from robots.models.rx60 import RX60
 from robots.simulation.robot import SimulatedRobot
 from scanner.scan.decision import DecisionMaker, FixedViewList, State
 from scanner.scan_dir.captures import CaptureStore

@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from planners.ik import Viewpoint, camera_pose, ik_camera, ik_flange, rig_centre_offset
+from planners.ik import Viewpoint, camera_pose, ik_camera, rig_centre_offset
 from reconstruction.stereo.camera_model import default_stereo_camera
+from robots.arms.rx60 import RX60, ik_flange, rx60_arm
 from robots.models.camera_tool import nominal_X_FC
 from robots.models.kinematics import Kinematics
-from robots.models.rx60 import RX60
 
 # Issue 3: position error <= 0.1 mm, orientation error <= 0.05 deg.
 POSITION_TOL_M = 1e-4
@@ -25,7 +25,7 @@ def pose_errors(X_a: np.ndarray, X_b: np.ndarray) -> tuple[float, float]:
 
 @pytest.fixture(scope="module")
 def kinematics():
-    return Kinematics(RX60())
+    return Kinematics(rx60_arm())
 
 
 def test_round_trip_on_random_reachable_poses(kinematics):
@@ -36,7 +36,7 @@ def test_round_trip_on_random_reachable_poses(kinematics):
     for _ in range(200):
         q = rng.uniform(robot.lower, robot.upper)
         X_WC = kinematics.X_WC(q, X_FC)
-        solutions = ik_camera(robot, X_WC, X_FC, q)
+        solutions = ik_camera(rx60_arm(robot), X_WC, X_FC, q)
         assert solutions, "a pose produced by FK must be reachable"
         for q_ik in solutions:
             assert robot.within_limits(q_ik)
@@ -55,7 +55,7 @@ def test_all_branches_are_found():
     +-2 pi copies of J4/J6 that the +-270 deg ranges allow)."""
     robot = RX60()
     q = np.array([0.3, 0.2, 0.9, 0.4, 0.7, -0.3])
-    X_WF = Kinematics(robot).X_WF(q)
+    X_WF = Kinematics(rx60_arm(robot)).X_WF(q)
     solutions = ik_flange(robot, X_WF, q)
     distinct_q5_q3 = {(round(s[1], 6), round(s[2], 6), round(s[4], 6)) for s in solutions}
     assert len(distinct_q5_q3) >= 4
@@ -81,7 +81,7 @@ def test_look_at_solutions_aim_the_rig_centre_at_the_target(kinematics):
             d = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
             vp = Viewpoint(tuple(target + 0.5 * d), tuple(target), 0.2)
             X_WC_wanted = camera_pose(vp, X_MC)
-            for q in ik_camera(robot, X_WC_wanted, X_FC):
+            for q in ik_camera(rx60_arm(robot), X_WC_wanted, X_FC):
                 X_WC = kinematics.X_WC(q, X_FC)
                 dp, dr = pose_errors(X_WC, X_WC_wanted)
                 assert dp < POSITION_TOL_M and dr < ROTATION_TOL_RAD

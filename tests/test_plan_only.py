@@ -24,7 +24,7 @@ from tests.tiny_scan import TINY_SCAN
 # Capture-only: the comparison is about where the arm goes, not the model.
 TINY = {**copy.deepcopy(TINY_SCAN), "reconstruct": False}
 # The RX60 wrist centre reaches at most this far from the shoulder (upper arm + forearm with the
-# elbow offset, Staubli RX60 datasheet lengths in robots.models.rx60).
+# elbow offset, Staubli RX60 datasheet lengths in robots.arms.rx60).
 SHOULDER_TO_WRIST_MAX_M = float(np.hypot(0.290 + 0.310, 0.049))
 SHOULDER_M = np.array([0.0, 0.0, 0.341])
 

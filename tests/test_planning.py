@@ -20,8 +20,8 @@ from planners.prm import cache_path
 from planners.timing import time_parameterise
 from reconstruction.common.errors import ScannerError
 from reconstruction.stereo.camera_model import default_stereo_camera
+from robots.arms.rx60 import RX60, rx60_arm
 from robots.models.camera_tool import nominal_X_FC
-from robots.models.rx60 import RX60
 from robots.models.workcell import WorkcellConfig, build_workcell
 from robots.simulation.cell import HOME_Q
 from robots.simulation.robot import SimulatedRobot
@@ -136,7 +136,7 @@ def test_reachable_solutions_are_free_and_ordered_by_motion_time(planner):
     ]
     for q in qs:
         assert any(
-            any(np.allclose(q, s, atol=1e-9) for s in ik_camera(RX60(), X_WC, X_FC))
+            any(np.allclose(q, s, atol=1e-9) for s in ik_camera(rx60_arm(), X_WC, X_FC))
             for X_WC in wanted
         )
 
@@ -214,7 +214,7 @@ def goal_inside_the_object(planner):
         X_WC = np.eye(4)
         X_WC[:3, 3] = centre - np.array([0.0, 0.0, offset])
         X_WC[:3, :3] = look_at_rotation(X_WC[:3, 3], centre)
-        solutions = ik_camera(RX60(), X_WC, X_FC)
+        solutions = ik_camera(rx60_arm(), X_WC, X_FC)
         if solutions:
             return solutions[0]
     raise AssertionError("no configuration puts the camera inside the object")
@@ -296,7 +296,7 @@ def test_validation_rejects_collisions_and_limit_violations(planner, views):
     blocked = next(((a, b) for a, b in pairs if straight_line_collides(planner, a, b)), None)
     if blocked is not None:
         straight = time_parameterise(
-            np.array(blocked), planner.workcell.plant, RX60(), "stop", 20, 0.95
+            np.array(blocked), planner.workcell.plant, rx60_arm(), "stop", 20, 0.95
         )
         report = planner.validate(straight, *blocked)
         assert not report.ok and report.failed_check == "collision"
@@ -305,7 +305,7 @@ def test_validation_rejects_collisions_and_limit_violations(planner, views):
     assert isinstance(result, Trajectory)
     assert planner.validate(result, q_start, q_goal).ok
     too_fast = time_parameterise(
-        result.path_rad, planner.workcell.plant, RX60(), result.corners, 20, 1.5
+        result.path_rad, planner.workcell.plant, rx60_arm(), result.corners, 20, 1.5
     )
     report = planner.validate(too_fast, q_start, q_goal)
     assert not report.ok and report.failed_check in ("velocity_limit", "acceleration_limit")
@@ -386,7 +386,7 @@ def test_a_straight_move_through_the_cell_is_refused_for_a_joint_linear_controll
         pytest.skip("every straight move between these views is free")
     result = planner.plan(*pair)
     assert isinstance(result, Trajectory), result
-    report = validate_polyline(np.stack(pair), *pair, planner.checker, planner.robot, MAX_STEP_RAD)
+    report = validate_polyline(np.stack(pair), *pair, planner.checker, planner.arm, MAX_STEP_RAD)
     assert not report.ok and report.failed_check == "collision"
-    refused = joint_linear_trajectory(result, planner.checker, planner.robot, 10.0, MAX_STEP_RAD)
+    refused = joint_linear_trajectory(result, planner.checker, planner.arm, 10.0, MAX_STEP_RAD)
     assert not refused.ok and refused.failed_check == "collision"

@@ -18,8 +18,8 @@ from reconstruction.calibration.file import (
 )
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import pose_difference
+from robots.arms.rx60 import RX60
 from robots.models.kinematics import Kinematics, corrected_kinematics
-from robots.models.rx60 import RX60
 from robots.simulation.cell import HOME_Q
 from robots.simulation.truth import ErrorModel, sample_truth
 from scanner.configs.scan import ScanConfig
@@ -87,7 +87,7 @@ def test_a_scan_with_the_correction_computes_poses_closer_to_the_truth(tmp_path)
 
 
 def test_corrected_link_lengths_move_the_flange_as_the_closed_form_arm():
-    from planners.ik import arm_model
+    from robots.arms.rx60 import arm_model
 
     arm = arm_model()
     p = np.zeros(arm.size)

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
+from robots.arms.rx60 import RX60, rx60_arm
 from robots.models.camera_tool import nominal_X_FC, tool_collision_box, tool_visual_boxes
 from robots.models.kinematics import Kinematics
-from robots.models.rx60 import RX60
 from robots.models.workcell import WorkcellConfig, build_workcell
 
 DEG = math.pi / 180
@@ -45,7 +45,7 @@ def poe_flange(q):
 
 def test_fk_matches_product_of_exponentials():
     robot = RX60()
-    kin = Kinematics(robot)
+    kin = Kinematics(rx60_arm(robot))
     rng = np.random.default_rng(7)
     for _ in range(100):
         q = rng.uniform(robot.lower, robot.upper)
@@ -57,7 +57,7 @@ def test_fk_matches_product_of_exponentials():
 
 def test_joint_limits_and_speeds_as_documented():
     robot = RX60()
-    cell = build_workcell(WorkcellConfig(), None, nominal_X_FC(), np.eye(4), robot)
+    cell = build_workcell(WorkcellConfig(), None, nominal_X_FC(), np.eye(4), rx60_arm(robot))
     plant = cell.plant
     lo_deg = [-160, -127.5, -134.5, -270, -109.5, -270]
     hi_deg = [160, 127.5, 134.5, 270, 120.5, 270]
@@ -84,12 +84,12 @@ def test_camera_frames_follow_the_hand_eye_transform():
     X_FC = nominal_X_FC()
     X_CR = np.eye(4)
     X_CR[0, 3] = 0.12
-    cell = build_workcell(WorkcellConfig(), None, X_FC, X_CR, robot)
+    cell = build_workcell(WorkcellConfig(), None, X_FC, X_CR, rx60_arm(robot))
     plant = cell.plant
     context = plant.CreateDefaultContext()
     q = np.array([0.3, -0.2, 1.2, 0.4, -0.5, 0.6])
     plant.SetPositions(context, cell.robot, q)
     X_WC = plant.GetFrameByName("camera_left").CalcPoseInWorld(context).GetAsMatrix4()
     X_WR = plant.GetFrameByName("camera_right").CalcPoseInWorld(context).GetAsMatrix4()
-    np.testing.assert_allclose(X_WC, Kinematics(robot).X_WC(q, X_FC), atol=1e-12)
+    np.testing.assert_allclose(X_WC, Kinematics(rx60_arm(robot)).X_WC(q, X_FC), atol=1e-12)
     assert np.linalg.norm(X_WR[:3, 3] - X_WC[:3, 3]) == pytest.approx(0.12, abs=1e-12)

@@ -10,10 +10,10 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
+from robots.arms.rx60 import ACCELERATION_TIME_S, RX60
 from robots.drivers import simple_message as sm
 from robots.emulator.arm import Arm, MoveJ
 from robots.emulator.val3_server import EmulatorSettings, Val3Emulator
-from robots.models.rx60 import ACCELERATION_TIME_S, RX60
 
 SETTINGS = EmulatorSettings(motion_port=0, state_port=0, connect_delay_s=0.05, time_scale=20.0)
 Q0 = np.zeros(6)

@@ -203,12 +203,10 @@ def _read_only(values: list) -> np.ndarray:
     return array
 
 
-def load_arm_plant(arm_file: ArmFile) -> ArmPlant:
-    """Parse the arm's model, weld its root at X_WB and read the chain. ScannerError, one line,
-    for a model Drake refuses, a flange link the model lacks, a limit in neither model nor file."""
-    text, kind = model_text(arm_file)
-    builder = DiagramBuilder()
-    plant, _ = AddMultibodyPlantSceneGraph(builder, time_step=0.0)
+def add_arm_model(plant: MultibodyPlant, arm_file: ArmFile, text: str, kind: str):
+    """Add the arm's model (`text` of `kind` "urdf" or "sdf", from `model_text`) to an
+    unfinalised plant, its root link welded at X_WB; its model instance. ScannerError, one line,
+    for a model Drake refuses or a flange link the model lacks."""
     parser = Parser(plant)
     for package, folder in arm_file.packages:
         # The arm file's folder wins over Drake's built-in packages (drake_models is remote).
@@ -226,9 +224,20 @@ def load_arm_plant(arm_file: ArmFile) -> ArmPlant:
             f"{arm_file.path}: flange_link: expected a link of {arm_file.model.name} "
             f"({links}), got {arm_file.flange_link!r}"
         )
-    flange_body = plant.GetBodyByName(arm_file.flange_link, instance)
     X_WB = RigidTransform(RollPitchYaw(arm_file.base_rpy_rad), np.array(arm_file.base_xyz_m))
     plant.WeldFrames(plant.world_frame(), _root_body(plant, instance, arm_file).body_frame(), X_WB)
+    return instance
+
+
+def load_arm_plant(arm_file: ArmFile, model: tuple[str, str] | None = None) -> ArmPlant:
+    """Parse the arm's model (`model`: its text and kind when already read by `model_text`),
+    weld its root at X_WB and read the chain. ScannerError, one line, for a model Drake refuses,
+    a flange link the model lacks, a limit in neither model nor file."""
+    text, kind = model_text(arm_file) if model is None else model
+    builder = DiagramBuilder()
+    plant, _ = AddMultibodyPlantSceneGraph(builder, time_step=0.0)
+    instance = add_arm_model(plant, arm_file, text, kind)
+    flange_body = plant.GetBodyByName(arm_file.flange_link, instance)
     chain = _chain(plant, instance, flange_body, arm_file)
     redundant = arm_file.ik.redundant_joint
     if redundant is not None and redundant not in [j.name() for j in chain]:

@@ -21,7 +21,7 @@ ROBOT_KINDS = ("staubli_val3",)
 # server turns the fraction into a percentage and rounds it to 1e-4 % before movej
 # (interpolateVel.pgx), and it rewrites exactly 0.1 % into another speed; a fraction of 1e-38
 # is accepted and holds the queue for ever. At 1 % a radian already takes 20 s on the RX60's
-# slowest joints (287 deg/s nominal, robots/models/rx60.py): nothing slower is ever needed.
+# slowest joints (287 deg/s nominal, robots/arms/rx60.py): nothing slower is ever needed.
 MIN_SPEED_FRACTION = 0.01
 # The VAL 3 server streams STATUS every 5th 20 ms cycle (dataStreamer.pgx, start.pgx): a state
 # timeout shorter than two such periods would stop the arm on one late STATUS.

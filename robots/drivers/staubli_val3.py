@@ -347,7 +347,7 @@ def path_deviation_rad(q: np.ndarray, path: np.ndarray) -> float:
 
 
 def _nominal_speeds() -> tuple[float, ...]:
-    from robots.models.rx60 import RX60
+    from robots.arms.rx60 import RX60
 
     return RX60().velocity_limits_rad_s
 

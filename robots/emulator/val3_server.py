@@ -34,11 +34,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from robots.arms.rx60 import ACCELERATION_TIME_S, RX60
 from robots.drivers import simple_message as sm
 from robots.drivers.simple_message import JointTrajPt, RobotStatus
 from robots.emulator.arm import Arm, MoveJ
 from robots.emulator.clients import ClientStalledError, Port
-from robots.models.rx60 import ACCELERATION_TIME_S, RX60
 
 _RX60 = RX60()
 

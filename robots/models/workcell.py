@@ -1,9 +1,9 @@
 """The work cell as data (WorkcellConfig) and its Drake model (MultibodyPlant + SceneGraph).
 
-World frame W = robot base frame (base mounting face, +z up). The RX60 stands on a table whose
-top is the plane z = 0; a safety fence stands behind the robot and a radiator beside it (SDU
-report, section 4.1); the object hangs from a thin rod above and in front of the robot because
-the RX60's reach is limited.
+World frame W = robot base frame (base mounting face, +z up). The arm (robots/arms) stands on a
+table whose top is the plane z = 0; a safety fence stands behind the robot and a radiator beside
+it (SDU report, section 4.1); the object hangs from a thin rod above and in front of the robot
+because the SDU cell's arm has a short reach.
 """
 
 from __future__ import annotations
@@ -30,15 +30,15 @@ from pydrake.geometry import (
     Sphere,
 )
 from pydrake.math import RigidTransform
-from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import FixedOffsetFrame, SpatialInertia
 from pydrake.planning import RobotDiagram, RobotDiagramBuilder
 
 from reconstruction.common.errors import ScannerError
+from robots.arms.arm import Arm
+from robots.arms.default import DEFAULT_ARM
 from robots.models import camera_tool
 from robots.models.objects import collision_hull_path
-from robots.models.rx60 import FLANGE_FRAME, RX60, rx60_urdf
 
 RENDERER_NAME = "vtk"
 OBJECT_BODY = "object"
@@ -123,7 +123,7 @@ class Workcell:
     """A built cell: the RobotDiagram and the handles every consumer needs."""
 
     diagram: RobotDiagram
-    robot: object  # ModelInstanceIndex of the RX60
+    robot: object  # ModelInstanceIndex of the arm
     config: WorkcellConfig
     has_renderer: bool
     has_object: bool = True
@@ -141,22 +141,18 @@ class Workcell:
         return int(self.plant.GetBodyByName(OBJECT_BODY).index())
 
 
-def add_rx60(plant: MultibodyPlant, robot: RX60):
-    (instance,) = Parser(plant).AddModelsFromString(rx60_urdf(robot), "urdf")
-    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("base_link", instance))
-    return instance
-
-
-def add_camera_frames(plant: MultibodyPlant, instance, X_FC: np.ndarray, X_CR: np.ndarray):
+def add_camera_frames(
+    plant: MultibodyPlant, arm: Arm, instance, X_FC: np.ndarray, X_CR: np.ndarray
+) -> None:
     """Left (C) and right (R) optical frames fixed to the flange at the given hand-eye pose."""
-    flange = plant.GetFrameByName(FLANGE_FRAME, instance)
+    flange = plant.GetFrameByName(arm.flange_frame, instance)
     left = plant.AddFrame(FixedOffsetFrame("camera_left", flange, RigidTransform(X_FC)))
     plant.AddFrame(FixedOffsetFrame("camera_right", left, RigidTransform(X_CR)))
 
 
-def _add_tool_geometry(plant: MultibodyPlant, instance) -> None:
-    body = plant.GetFrameByName(FLANGE_FRAME, instance).body()
-    X_BF = plant.GetFrameByName(FLANGE_FRAME, instance).GetFixedPoseInBodyFrame()
+def _add_tool_geometry(plant: MultibodyPlant, arm: Arm, instance) -> None:
+    body = plant.GetFrameByName(arm.flange_frame, instance).body()
+    X_BF = plant.GetFrameByName(arm.flange_frame, instance).GetFixedPoseInBodyFrame()
     for i, box in enumerate(camera_tool.tool_visual_boxes()):
         plant.RegisterVisualGeometry(
             body,
@@ -175,20 +171,17 @@ def _add_tool_geometry(plant: MultibodyPlant, instance) -> None:
     )
 
 
-def _filter_wrist_tool(plant: MultibodyPlant, scene_graph, instance) -> None:
-    """Exclude the wrist sphere (link5) vs the camera tool from collision checks.
-
-    The sphere is centred on the J6 axis, so its distance to anything on the flange never changes
-    with q: it is a constant 6 mm, which any planning padding >= 6 mm would turn into a permanent
-    false self-collision. Parent/child pairs are already filtered by the plant; this pair is two
-    joints apart.
-    """
-    wrist = plant.GetBodyByName("link5", instance)
-    tool = plant.GetFrameByName(FLANGE_FRAME, instance).body()
-    pair = GeometrySet(
-        plant.GetCollisionGeometriesForBody(wrist) + plant.GetCollisionGeometriesForBody(tool)
-    )
-    scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeWithin(pair))
+def _filter_tool(plant: MultibodyPlant, scene_graph, arm: Arm, instance) -> None:
+    """Exclude the arm's `tool_filtered_links` vs the camera tool from collision checks (why:
+    robots.arms.arm.Arm)."""
+    tool = plant.GetFrameByName(arm.flange_frame, instance).body()
+    for link in arm.tool_filtered_links:
+        body = plant.GetBodyByName(link, instance)
+        pair = GeometrySet(
+            plant.GetCollisionGeometriesForBody(body) + plant.GetCollisionGeometriesForBody(tool)
+        )
+        filters = CollisionFilterDeclaration().ExcludeWithin(pair)
+        scene_graph.collision_filter_manager().Apply(filters)
 
 
 def _friction():
@@ -305,7 +298,7 @@ def build_workcell(
     obj: PlacedObject | None,
     X_FC: np.ndarray,
     X_CR: np.ndarray,
-    robot: RX60 = RX60(),
+    arm: Arm = DEFAULT_ARM,
     renderer: bool = False,
     meshcat=None,
     extras: Sequence[Callable[[MultibodyPlant, object], None]] = (),
@@ -331,16 +324,16 @@ def build_workcell(
         builder.scene_graph().AddRenderer(
             RENDERER_NAME, MakeRenderEngineVtk(RenderEngineVtkParams())
         )
-    instance = add_rx60(plant, robot)
-    _add_tool_geometry(plant, instance)
-    add_camera_frames(plant, instance, X_FC, X_CR)
+    instance = arm.add_model(plant)
+    _add_tool_geometry(plant, arm, instance)
+    add_camera_frames(plant, arm, instance, X_FC, X_CR)
     _add_cell(plant, config)
     if include_object:
         _add_object(plant, config, obj, config.X_WO if X_WO is None else X_WO)
     for extra in extras:
         extra(plant, instance)
     plant.Finalize()
-    _filter_wrist_tool(plant, builder.scene_graph(), instance)
+    _filter_tool(plant, builder.scene_graph(), arm, instance)
     if meshcat is not None:
         from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams
 

@@ -22,7 +22,7 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 
 from reconstruction.common.errors import ScannerError
-from robots.models.rx60 import FLANGE_FRAME
+from robots.arms.rx60 import FLANGE_FRAME
 from robots.models.workcell import textured_instance
 
 

@@ -11,10 +11,10 @@ import numpy as np
 
 from reconstruction.depth.camera_model import RgbdCamera
 from reconstruction.stereo.camera_model import StereoCamera, default_stereo_camera
+from robots.arms.rx60 import RX60, rx60_arm
 from robots.drivers.interfaces import RobotDriver
 from robots.models import camera_tool
 from robots.models.objects import ObjectMesh, mesh_fingerprint, resolve_object, write_textured_obj
-from robots.models.rx60 import RX60
 from robots.models.workcell import Workcell, WorkcellConfig, build_workcell, placed_object
 from robots.simulation.operator import hung_pose, rehung_pose
 from robots.simulation.robot import SimulatedRobot
@@ -96,7 +96,7 @@ def _assemble(
         obj,
         truth.X_FC,
         (truth.rgbd or truth.stereo).X_CR,
-        sim_robot.robot,
+        rx60_arm(sim_robot.robot),
         renderer=True,
         meshcat=meshcat,
         extras=extras,

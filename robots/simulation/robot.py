@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from robots.arms.rx60 import RX60
 from robots.drivers.interfaces import JointTrajectory, RobotDriver
-from robots.models.rx60 import RX60
 
 # A trajectory must start where the arm is; a larger jump means a planning bug, not noise.
 START_TOLERANCE_RAD = 1e-6

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from planners.ik import ik_flange, look_at_rotation
+from planners.ik import look_at_rotation
 from reconstruction.calibration.eye_to_hand import (
     MarkerDetectionSettings,
     detect_blinking_marker,
@@ -25,6 +25,7 @@ from reconstruction.calibration.eye_to_hand import (
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import make_pose, pose_difference, transform_points
 from reconstruction.stereo.camera_model import StereoCamera, stereo_camera_to_dict
+from robots.arms.rx60 import ik_flange
 from robots.simulation.blinking_marker import BlinkingMarker
 from robots.simulation.cell import cache_dir
 from robots.simulation.static_camera import StaticStereoCamera

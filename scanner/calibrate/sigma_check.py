@@ -133,9 +133,9 @@ def render_free_observations(
     mount, stations reached by the RX60's IK from the simulated arm's home joints. With
     `kinematic_error_m` the true arm's link lengths are off (`kinematic_error_robot`)."""
     # Imported here: the calibration report imports this module for error_in_sigmas alone.
-    from planners.ik import camera_pose, fk_flange, ik_camera, rig_centre_offset
+    from planners.ik import camera_pose, ik_camera, rig_centre_offset
+    from robots.arms.rx60 import RX60, fk_flange, rx60_arm
     from robots.models.camera_tool import nominal_X_FC
-    from robots.models.rx60 import RX60
     from robots.simulation.cell import HOME_Q
     from scanner.calibrate.stations import plan_stations
 
@@ -143,6 +143,7 @@ def render_free_observations(
     X_FC = nominal_X_FC(stereo.baseline_m)
     X_WB = config.placement.X_WB(config.board)
     robot = RX60()
+    arm = rx60_arm(robot)
     X_MC = rig_centre_offset(stereo.X_CR)
     plan = plan_stations(
         config.stations,
@@ -150,7 +151,7 @@ def render_free_observations(
         X_WB,
         stereo,
         X_FC,
-        lambda v: ik_camera(robot, camera_pose(v, X_MC), X_FC),
+        lambda v: ik_camera(arm, camera_pose(v, X_MC), X_FC),
         HOME_Q,
     )
     stations_q = [s.q for s in plan.stations]

@@ -112,7 +112,7 @@ def solve(
             )
     arm = None
     if settings.robot_offsets:
-        from planners.ik import arm_model
+        from robots.arms.rx60 import arm_model
 
         arm = arm_model()
     hand_eye = calibrate_hand_eye(

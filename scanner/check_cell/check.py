@@ -100,7 +100,7 @@ def controller_items(world: ScanWorld) -> list[CheckItem]:
         why = refusal()
         items.append(CheckItem("controller", why is None, why or "ready: drives on, no e-stop"))
     q = robot.joint_positions()
-    lower, upper = world.planner.robot.lower, world.planner.robot.upper
+    lower, upper = world.planner.arm.lower, world.planner.arm.upper
     outside = [f"J{i + 1}" for i in range(6) if not lower[i] <= q[i] <= upper[i]]
     joints = " ".join(f"{np.degrees(v):.1f}" for v in q)
     if outside:

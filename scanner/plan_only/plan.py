@@ -47,7 +47,7 @@ def why_unreachable(
         camera_pose(Viewpoint(tuple(p_WM), tuple(centre), float(r)), planner.X_MC)
         for r in _rolls_rad(config)
     ]
-    solutions = [q for X_WC in poses for q in ik_camera(planner.robot, X_WC, planner.X_FC, q_seed)]
+    solutions = [q for X_WC in poses for q in ik_camera(planner.arm, X_WC, planner.X_FC, q_seed)]
     if not solutions:
         return (
             "no_ik_solution",

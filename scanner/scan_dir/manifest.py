@@ -22,7 +22,7 @@ from reconstruction.depth.camera_model import (
     camera_model_from_dict,
     camera_model_to_dict,
 )
-from robots.models.rx60 import RX60, rx60_urdf
+from robots.arms.rx60 import RX60, rx60_urdf
 from scanner.configs.scan import ScanConfig, scan_config_from_dict, scan_config_to_dict
 from scanner.scan_dir.captures import CaptureStore
 from scanner.scan_dir.views import PlannedView, ViewOption

@@ -14,8 +14,8 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import SpatialInertia
 
 from reconstruction.common.transforms import invert, transform_points
+from robots.arms.rx60 import RX60, rx60_arm
 from robots.models.objects import ObjectMesh
-from robots.models.rx60 import RX60
 from robots.models.workcell import WorkcellConfig, build_workcell, placed_object
 from robots.simulation.cell import textured_object
 from robots.simulation.cell_video.intruders import IntruderPath
@@ -102,7 +102,7 @@ class VideoScene:
             obj,
             truth.X_FC,
             truth.stereo.X_CR,
-            robot,
+            rx60_arm(robot),
             renderer=True,
             extras=(self._intruders,),
             include_object=object_mesh is not None,

@@ -17,9 +17,9 @@ import numpy as np
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.stereo.camera_model import StereoCamera
+from robots.arms.rx60 import RX60
 from robots.drivers.interfaces import JointTrajectory
 from robots.models.objects import ObjectMesh
-from robots.models.rx60 import RX60
 from robots.models.workcell import WorkcellConfig
 from robots.simulation.cell import Simulation
 from robots.simulation.cell_video.intruders import DEFAULT_STATIC_CAMERA, IntruderPath

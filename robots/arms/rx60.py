@@ -1,4 +1,4 @@
-"""Staubli RX60 kinematic data and its URDF.
+"""The Staubli RX60 as an `Arm`: its kinematic data, its URDF, its closed-form kinematics.
 
 Source: Staubli RX60 datasheet values (shoulder height 0.341 m, upper arm 0.290 m, forearm
 0.310 m, wrist centre to flange 0.065 m, J2/J3 lateral offset 0.049 m, joint ranges and nominal
@@ -11,17 +11,42 @@ flange face.
 
 Acceleration limits are not in the datasheet; we assume each joint reaches its maximum speed in
 0.3 s (a typical value for a lightly loaded arm of this class) and say so in the README.
+
+Inverse kinematics in closed form over all branches: the RX60 has a spherical wrist, so the
+wrist centre p_WW = p_WF - L6 z_F fixes q1..q3 (shoulder left/right x elbow up/down: up to 4
+branches) and the wrist orientation R_36 = Rz(q4) Ry(q5) Rz(q6) fixes q4..q6 (wrist flip: 2
+branches). J4 and J6 range over +-270 deg, so each branch also appears shifted by +-2 pi where the
+limits allow. Every solution is verified by the same closed-form forward kinematics before it is
+returned.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from reconstruction.calibration.robot_errors import ArmModel
+
+# Drake is imported only where the arm's model is made: the controller emulator and the command
+# line's parser read the RX60's numbers and must not wait for it.
+if TYPE_CHECKING:
+    from pydrake.multibody.plant import MultibodyPlant
+
+    from robots.arms.arm import Arm
+
 _DEG = math.pi / 180.0
 ACCELERATION_TIME_S = 0.3
+# Stäubli RX60 datasheet: repeatability +-0.02 mm. Stäubli publishes no absolute accuracy; 0.5 mm
+# is the uncalibrated accuracy this product assumes.
+REPEATABILITY_M = 0.00002
+ACCURACY_M = 0.0005
+TWO_PI = 2 * math.pi
+# Below this sin(q5) the wrist is singular: q4 + q6 is fixed, q4 is taken from the seed.
+WRIST_SINGULAR_EPS = 1e-9
 
 
 # The RX60's link lengths a kinematic calibration may correct, and their words.
@@ -202,4 +227,150 @@ def rx60_urdf(robot: RX60 = RX60()) -> str:
         + "".join(links)
         + "".join(joints)
         + "</robot>\n"
+    )
+
+
+# --- closed-form kinematics --------------------------------------------------------------------
+
+
+def _rz(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def _ry(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])
+
+
+def fk_flange(robot: RX60, q: np.ndarray) -> np.ndarray:
+    """Closed-form X_WF(q) (4x4), the same chain as the URDF."""
+    q1, q2, q3, q4, q5, q6 = q
+    h, a2, d, a3 = robot.shoulder_height_m, robot.upper_arm_m, robot.elbow_offset_m, robot.forearm_m
+    R1 = _rz(q1)
+    x = a2 * math.sin(q2) + a3 * math.sin(q2 + q3)
+    z = h + a2 * math.cos(q2) + a3 * math.cos(q2 + q3)
+    p_WW = R1 @ np.array([x, d, z])
+    R_WF = R1 @ _ry(q2 + q3) @ _rz(q4) @ _ry(q5) @ _rz(q6)
+    X = np.eye(4)
+    X[:3, :3] = R_WF
+    X[:3, 3] = p_WW + robot.wrist_to_flange_m * R_WF[:, 2]
+    return X
+
+
+def arm_model(robot: RX60 = RX60()) -> ArmModel:
+    """The RX60's kinematics with error parameters (joint zero offsets, then LINK_LENGTHS'
+    corrections) for the hand-eye calibration's robot errors."""
+    fields = tuple(LINK_LENGTHS)
+
+    def flange_pose(q: np.ndarray, p: np.ndarray) -> np.ndarray:
+        arm = robot.with_length_corrections(dict(zip(fields, p[6:]))) if np.any(p[6:]) else robot
+        return fk_flange(arm, np.asarray(q, float) + p[:6])
+
+    return ArmModel(flange_pose, fields, tuple(LINK_LENGTHS.values()))
+
+
+def _arm_branches(robot: RX60, p_WW: np.ndarray) -> list[tuple[float, float, float]]:
+    """(q1, q2, q3) placing the wrist centre at p_WW: up to four branches."""
+    h, a2, d, a3 = robot.shoulder_height_m, robot.upper_arm_m, robot.elbow_offset_m, robot.forearm_m
+    px, py, pz = p_WW
+    r2 = px * px + py * py - d * d
+    if r2 < 0:
+        return []
+    out = []
+    for x in {math.sqrt(r2), -math.sqrt(r2)}:
+        q1 = math.atan2(py, px) - math.atan2(d, x)
+        z = pz - h
+        c3 = (x * x + z * z - a2 * a2 - a3 * a3) / (2 * a2 * a3)
+        if abs(c3) > 1:
+            continue
+        for q3 in {math.acos(c3), -math.acos(c3)}:
+            q2 = math.atan2(x, z) - math.atan2(a3 * math.sin(q3), a2 + a3 * math.cos(q3))
+            out.append((_wrap(q1), _wrap(q2), q3))
+    return out
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % TWO_PI - math.pi
+
+
+def _wrist_branches(R_36: np.ndarray, q4_seed: float) -> list[tuple[float, float, float]]:
+    s5 = math.hypot(R_36[0, 2], R_36[1, 2])
+    q5 = math.atan2(s5, R_36[2, 2])
+    if s5 < WRIST_SINGULAR_EPS:
+        q46 = math.atan2(R_36[1, 0], R_36[0, 0])
+        return [(q4_seed, q5, _wrap(q46 - q4_seed))]
+    q4 = math.atan2(R_36[1, 2], R_36[0, 2])
+    q6 = math.atan2(R_36[2, 1], -R_36[2, 0])
+    return [(q4, q5, q6), (_wrap(q4 + math.pi), -q5, _wrap(q6 + math.pi))]
+
+
+def ik_flange(
+    robot: RX60, X_WF: np.ndarray, q_seed: np.ndarray | None = None, tol_m: float = 1e-7
+) -> list[np.ndarray]:
+    """All joint solutions within limits that put the flange at X_WF (verified by FK)."""
+    q_seed = np.zeros(6) if q_seed is None else np.asarray(q_seed, float)
+    R_WF, p_WF = X_WF[:3, :3], X_WF[:3, 3]
+    p_WW = p_WF - robot.wrist_to_flange_m * R_WF[:, 2]
+    lo, hi = robot.lower, robot.upper
+    solutions = []
+    for q1, q2, q3 in _arm_branches(robot, p_WW):
+        R_36 = (_rz(q1) @ _ry(q2 + q3)).T @ R_WF
+        for q4, q5, q6 in _wrist_branches(R_36, q_seed[3]):
+            for k4, k6 in itertools.product((-1, 0, 1), repeat=2):
+                q = np.array([q1, q2, q3, q4 + k4 * TWO_PI, q5, q6 + k6 * TWO_PI])
+                if np.all(q >= lo) and np.all(q <= hi):
+                    solutions.append(q)
+    return [q for q in solutions if _pose_error_m(fk_flange(robot, q), X_WF) < tol_m]
+
+
+def _pose_error_m(X_a: np.ndarray, X_b: np.ndarray) -> float:
+    """Translation error plus rotation error expressed at 1 m lever (for verification only)."""
+    return float(
+        np.linalg.norm(X_a[:3, 3] - X_b[:3, 3]) + np.linalg.norm(X_a[:3, :3] - X_b[:3, :3])
+    )
+
+
+# --- the RX60 as an Arm ------------------------------------------------------------------------
+
+
+def add_rx60(plant: MultibodyPlant, robot: RX60):
+    """The RX60's URDF in `plant`, its base_link welded at the world origin; its model instance."""
+    from pydrake.multibody.parsing import Parser
+
+    (instance,) = Parser(plant).AddModelsFromString(rx60_urdf(robot), "urdf")
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("base_link", instance))
+    return instance
+
+
+def rx60_arm(robot: RX60 = RX60()) -> Arm:
+    """`robot` behind the Arm interface: closed-form FK and IK, the URDF of rx60_urdf."""
+    from pydrake.math import RigidTransform
+
+    from robots.arms.arm import Arm
+
+    def ik(X_WF: RigidTransform, q_near: np.ndarray | None = None) -> np.ndarray:
+        solutions = ik_flange(robot, X_WF.GetAsMatrix4(), q_near)
+        return np.array(solutions).reshape(len(solutions), len(robot.joint_names))
+
+    return Arm(
+        name=ROBOT_MODEL_NAME,
+        joint_names=robot.joint_names,
+        lower=robot.lower,
+        upper=robot.upper,
+        velocity=np.array(robot.velocity_limits_rad_s),
+        acceleration=np.array(robot.acceleration_limits_rad_s2),
+        flange_frame=FLANGE_FRAME,
+        add_model=lambda plant: add_rx60(plant, robot),
+        X_WF=lambda q: RigidTransform(fk_flange(robot, q)),
+        ik=ik,
+        model_text=rx60_urdf(robot),
+        identity=repr(robot),
+        accuracy_m=ACCURACY_M,
+        repeatability_m=REPEATABILITY_M,
+        # The wrist sphere is centred on the J6 axis: its distance to anything on the flange is a
+        # constant 6 mm, which any planning padding >= 6 mm would turn into a permanent false
+        # self-collision. (Parent/child pairs are filtered by the plant; this pair is two joints
+        # apart.)
+        tool_filtered_links=("link5",),
     )
