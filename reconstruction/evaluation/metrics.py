@@ -25,6 +25,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
+from reconstruction.common.kdtree import query_workers
 from reconstruction.common.transforms import pose_difference
 
 
@@ -77,7 +78,8 @@ def distances_to_mesh(points: np.ndarray, surface: TriangleSurface) -> np.ndarra
 
 def distances_to_points(points: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Nearest-neighbour distances (m) from each point to the target cloud."""
-    return cKDTree(np.asarray(target)).query(np.asarray(points), workers=-1)[0]
+    points = np.asarray(points)
+    return cKDTree(np.asarray(target)).query(points, workers=query_workers(len(points)))[0]
 
 
 def _sees(scene, p, normals, centre, todo, max_incidence_rad, offset_m) -> np.ndarray:

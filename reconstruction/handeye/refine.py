@@ -18,6 +18,7 @@ from scipy.spatial import cKDTree
 
 from reconstruction.common.checks import require_count, require_positive
 from reconstruction.common.errors import ScannerError
+from reconstruction.common.kdtree import query_workers
 from reconstruction.common.robust_loss import check_loss, irls_weights
 from reconstruction.common.transforms import invert, rotate_vectors, transform_points, twist_to_pose
 from reconstruction.registration.filtering import FilteredCloud, o3d_cloud
@@ -155,7 +156,7 @@ def _matches(
         vt = views[t]
         X_CtW = invert(X_WC[t])
         p_Ct = np.vstack([transform_points(X_CtW @ X_WC[s], views[s].source_C) for s in sources])
-        d, k = vt.tree.query(p_Ct, distance_upper_bound=gate_m, workers=-1)
+        d, k = vt.tree.query(p_Ct, distance_upper_bound=gate_m, workers=query_workers(len(p_Ct)))
         ok = np.isfinite(d)
         if not ok.any():
             continue

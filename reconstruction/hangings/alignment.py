@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from reconstruction.common.checks import check_fields, fraction, integer, positive
+from reconstruction.common.kdtree import query_workers
 from reconstruction.common.transforms import (
     invert,
     rotation_angle_rad,
@@ -233,7 +234,7 @@ def _fit(points, grey, tree, reference_grey, distance: float) -> _Fit:
     """Overlap, inlier RMS, and the correlation of the grey values of matched points: a
     rotation that fits the shape but not the texture (a symmetric shape flipped) correlates
     near 0, the true one clearly above."""
-    d, idx = tree.query(points, distance_upper_bound=distance, workers=-1)
+    d, idx = tree.query(points, distance_upper_bound=distance, workers=query_workers(len(points)))
     inliers = np.isfinite(d)
     if inliers.sum() < 10:
         return _Fit(float(inliers.mean()), math.inf, 0.0)

@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 
 from reconstruction.common.checks import check_fields, fraction, integer, positive, require_choice
 from reconstruction.common.errors import ScannerError
+from reconstruction.common.kdtree import query_workers
 from reconstruction.common.transforms import (
     invert,
     pose_difference,
@@ -324,7 +325,7 @@ def select_pairs(
 
 
 def _overlap(points: np.ndarray, tree: cKDTree, distance_m: float) -> float:
-    d, _ = tree.query(points, distance_upper_bound=distance_m, workers=-1)
+    d, _ = tree.query(points, distance_upper_bound=distance_m, workers=query_workers(len(points)))
     return float(np.mean(np.isfinite(d)))
 
 

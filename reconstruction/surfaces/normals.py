@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from reconstruction.common.kdtree import query_workers
+
 # Fewer agreeing neighbours than this: the plane is not trusted and the normal stays.
 MIN_NEIGHBOURS = 6
 # Points per batch: bounds the (batch, neighbours, 3) arrays to about 10 MB each.
@@ -59,7 +61,12 @@ def local_planes(
     k = min(max_neighbours, len(points))
     for start in range(0, len(points), BATCH):
         stop = min(start + BATCH, len(points))
-        dist, idx = tree.query(points[start:stop], k=k, distance_upper_bound=radius_m, workers=-1)
+        dist, idx = tree.query(
+            points[start:stop],
+            k=k,
+            distance_upper_bound=radius_m,
+            workers=query_workers(stop - start),
+        )
         found = np.isfinite(dist)
         idx = np.where(found, idx, 0)
         own = normals[start:stop]

@@ -15,6 +15,7 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from reconstruction.common.errors import ScannerError
+from reconstruction.common.kdtree import query_workers
 from reconstruction.surfaces.config import SurfaceConfig
 from reconstruction.surfaces.meshes import SurfaceInput, SurfaceMesh, finish_mesh
 from reconstruction.surfaces.poisson_solver import solve_poisson_apart
@@ -45,8 +46,11 @@ def _poisson_solution(inputs: SurfaceInput, config: SurfaceConfig):
 
 def _unsupported(inputs: SurfaceInput, mesh, config: SurfaceConfig) -> np.ndarray:
     """Vertices farther than poisson_max_distance_m from every fused point."""
+    vertices = np.asarray(mesh.vertices)
     far, _ = cKDTree(inputs.fused.points_W).query(
-        np.asarray(mesh.vertices), distance_upper_bound=config.poisson_max_distance_m, workers=-1
+        vertices,
+        distance_upper_bound=config.poisson_max_distance_m,
+        workers=query_workers(len(vertices)),
     )
     return ~np.isfinite(far)
 
