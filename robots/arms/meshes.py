@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
+from robots.cache import cache_dir
 
 DRAKE_MESH_SUFFIXES = (".obj", ".gltf", ".vtk")
 CONVERTIBLE_SUFFIXES = (".stl",)
@@ -25,9 +26,8 @@ _STL_TRIANGLE = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("a
 
 
 def mesh_cache_dir() -> Path:
-    """Where converted meshes are kept; the same SCANNER_CACHE root the simulation uses."""
-    root = Path(os.environ.get("SCANNER_CACHE", Path.home() / ".cache" / "scanner"))
-    return root / "arm_meshes"
+    """Where converted meshes are kept."""
+    return cache_dir() / "arm_meshes"
 
 
 def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:

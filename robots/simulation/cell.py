@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -12,6 +11,7 @@ import numpy as np
 from reconstruction.depth.camera_model import RgbdCamera
 from reconstruction.stereo.camera_model import StereoCamera, default_stereo_camera
 from robots.arms.rx60 import RX60, rx60_arm
+from robots.cache import cache_dir
 from robots.drivers.interfaces import RobotDriver
 from robots.models import camera_tool
 from robots.models.objects import ObjectMesh, mesh_fingerprint, resolve_object, write_textured_obj
@@ -23,10 +23,6 @@ from robots.simulation.truth import ErrorModel, Truth, sample_truth
 
 # Folded: elbow up, camera looking forward and down at the table, well below the object.
 HOME_Q = np.array([0.0, -0.4, 2.3, 0.0, 0.8, 0.0])
-
-
-def cache_dir() -> Path:
-    return Path(os.environ.get("SCANNER_CACHE", Path.home() / ".cache" / "scanner"))
 
 
 def textured_object(mesh: ObjectMesh, texture_seed: int = 0) -> Path:

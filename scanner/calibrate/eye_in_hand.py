@@ -15,6 +15,7 @@ import numpy as np
 from planners.planner import PlanFailure, Planner
 from reconstruction.common.errors import ScannerError
 from reconstruction.depth.camera_model import CameraModel, camera_model_to_dict
+from robots.cache import cache_dir
 from robots.drivers.connect import close_all, connect_robot, open_camera
 from robots.drivers.interfaces import (
     DepthCameraDriver,
@@ -33,7 +34,6 @@ from robots.models.kinematics import Kinematics
 from robots.models.workcell import build_workcell
 from robots.simulation.cell import (
     Simulation,
-    cache_dir,
     camera_at_reported_joints,
     create_simulation,
 )

@@ -26,8 +26,8 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import make_pose, pose_difference, transform_points
 from reconstruction.stereo.camera_model import StereoCamera, stereo_camera_to_dict
 from robots.arms.rx60 import ik_flange
+from robots.cache import cache_dir
 from robots.simulation.blinking_marker import BlinkingMarker
-from robots.simulation.cell import cache_dir
 from robots.simulation.static_camera import StaticStereoCamera
 from scanner.calibrate.config import CalibrateConfig, EyeToHandConfig
 from scanner.calibrate.eye_in_hand import MoveFn, PlannedMover, build_world

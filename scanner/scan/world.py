@@ -19,6 +19,7 @@ from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.stereo.cloud import view_cloud
 from reconstruction.stereo.params import disparity_window, object_depth_window
 from reconstruction.stereo.rectification import compute_rectification
+from robots.cache import cache_dir
 from robots.drivers.connect import close_all, connect_robot, open_camera, open_depth_camera
 from robots.drivers.interfaces import (
     DepthCameraDriver,
@@ -31,7 +32,6 @@ from robots.models import camera_tool
 from robots.models.workcell import Workcell, build_workcell, keep_out_radius_m
 from robots.simulation.cell import (
     Simulation,
-    cache_dir,
     camera_at_reported_joints,
     create_simulation,
     rehang,
