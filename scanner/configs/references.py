@@ -102,6 +102,14 @@ def check_robot(robot: str, name: str) -> None:
     _named(name, lambda: arm_of(robot))
 
 
+def absolute_arm_file(robot: str) -> str:
+    """A flag's arm file as an absolute path: the configuration is saved with the scan and
+    read again from elsewhere (a resume, a reconstruction)."""
+    from robots.arms.default import is_arm_file
+
+    return str(Path(robot).resolve()) if is_arm_file(robot) else robot
+
+
 def check_references(config, where: str) -> None:
     """Everything `config` (a ScanConfig loaded from `where`) names outside itself."""
     check_object(config.object, config.cell.object_size_m, f"{where}: object")

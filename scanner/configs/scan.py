@@ -24,6 +24,7 @@ from robots.models.workcell import WorkcellConfig
 from robots.simulation.truth import ErrorModel
 from scanner.configs.flags import for_flag
 from scanner.configs.references import (
+    absolute_arm_file,
     check_calibration_file,
     check_driver,
     check_object,
@@ -210,14 +211,6 @@ def resume_request(saved: ScanConfig, path: Path | None, **flags) -> ScanConfig:
     return with_overrides(config, **flags)
 
 
-def _absolute_arm_file(robot: str) -> str:
-    """A flag's arm file as an absolute path: the configuration is saved with the scan and
-    read again from elsewhere (a resume, a reconstruction)."""
-    from robots.arms.default import is_arm_file
-
-    return str(Path(robot).resolve()) if is_arm_file(robot) else robot
-
-
 def with_overrides(
     config: ScanConfig,
     object_spec: str | None = None,
@@ -264,7 +257,7 @@ def with_overrides(
         config = for_flag("--sensor", lambda: replace(config, sensor=sensor))
     if robot is not None:
         check_robot(robot, "--robot")
-        config = replace(config, robot=_absolute_arm_file(robot))
+        config = replace(config, robot=absolute_arm_file(robot))
     if driver is not None:
         check_driver(driver, "--driver")
         config = replace(config, driver=driver)
