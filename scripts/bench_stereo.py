@@ -27,7 +27,6 @@ from reconstruction.stereo.cloud import stereo_cloud
 from reconstruction.stereo.metrics import stereo_accuracy
 from reconstruction.stereo.params import StereoParams, disparity_window, object_depth_window
 from reconstruction.stereo.rectification import compute_rectification
-from robots.arms.rx60 import rx60_arm
 from robots.models import camera_tool
 from robots.models.workcell import WorkcellConfig, keep_out_radius_m
 from robots.simulation.cell import HOME_Q, create_simulation
@@ -47,7 +46,7 @@ def reachable_views(sim, count: int) -> list[np.ndarray]:
     c = np.array(sim.workcell.config.object_center_m)
     X_FC = camera_tool.nominal_X_FC(sim.truth.stereo.baseline_m)
     X_MC = rig_centre_offset(sim.truth.stereo.X_CR)
-    arm = rx60_arm(sim.robot.robot)
+    arm = sim.robot.arm
     views = []
     for az, el in np.radians(DIRECTIONS_DEG):
         d = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])

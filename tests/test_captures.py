@@ -77,7 +77,7 @@ def test_damaged_captures_are_named(tmp_path):
     (d / "0001" / "capture.yaml").write_text(meta.replace("q_rad:\n-", "q_rad:\n- .nan\n-", 1))
     with pytest.raises(ScannerError, match="0000/left.png: missing or unreadable"):
         store.read_capture(0)
-    with pytest.raises(ScannerError, match="q_rad must be 6 finite"):
+    with pytest.raises(ScannerError, match="q_rad must be a list of finite joint positions"):
         store.read_capture(1)
     assert store.read_capture(2).pose_index == 2
 

@@ -153,6 +153,8 @@ CASES = [
     (["monitor", "--duration", "5"], "--intruder", st.just("6")),
     (["scan"], "--sensor", _names(["stereo", "rgbd"])),
     (["calibrate"], "--sensor", _names(["stereo", "rgbd"])),
+    (["scan"], "--robot", _paths([*PATHS, "kuka", "RX60"])),
+    (["calibrate"], "--robot", _paths([*PATHS, "kuka", "RX60"])),
     (["check-cell"], "--config", _paths(PATHS)),
     (["check-cell"], "--calibration", _paths(PATHS)),
     (["check-cell"], "--driver", _names([])),

@@ -6,7 +6,7 @@ import numpy as np
 
 from planners.ik import Viewpoint
 from planners.planner import PlanFailure
-from robots.arms.rx60 import RX60
+from robots.arms.default import DEFAULT_ARM
 from robots.drivers.interfaces import (
     CaptureError,
     JointTrajectory,
@@ -72,7 +72,7 @@ def _view(i, *qs):
 
 
 def _machine(tmp_path, views, planner, camera):
-    robot = SimulatedRobot(RX60(), np.zeros(6), np.zeros(6))
+    robot = SimulatedRobot(DEFAULT_ARM, np.zeros(6), np.zeros(6))
     store = CaptureStore.create(tmp_path / "scan", {})
     return DecisionMaker(
         planner, robot, camera, store, FixedViewList(list(views)), len(views), lambda q: np.eye(4)

@@ -20,6 +20,7 @@ from planners.prm import cache_path
 from planners.timing import time_parameterise
 from reconstruction.common.errors import ScannerError
 from reconstruction.stereo.camera_model import default_stereo_camera
+from robots.arms.default import DEFAULT_ARM
 from robots.arms.rx60 import RX60, rx60_arm
 from robots.models.camera_tool import nominal_X_FC
 from robots.models.workcell import WorkcellConfig, build_workcell
@@ -185,7 +186,7 @@ def test_trajectory_executes_on_the_simulated_robot(planner, views):
     q_start, q_goal = views[0][0], views[-1][0]
     result = planner.plan(q_start, q_goal)
     assert isinstance(result, Trajectory), result
-    arm = SimulatedRobot(RX60(), np.zeros(6), q_start)
+    arm = SimulatedRobot(DEFAULT_ARM, np.zeros(6), q_start)
     arm.execute(result.to_joint_trajectory())
     assert np.array_equal(arm.joint_positions(), q_goal)
 

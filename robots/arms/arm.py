@@ -44,7 +44,8 @@ class Arm:
     `tool_filtered_links`: links never checked against the tool on the flange (a link whose
     distance to the tool cannot change with q would otherwise be a permanent false collision
     under the planning padding). accuracy_m / repeatability_m: the vendor's pose accuracy and
-    repeatability."""
+    repeatability. `home`: where a simulated arm starts and a scan begins, collision-free in the
+    work cell (None: the middle of every joint's range; see `home_q`)."""
 
     name: str
     joint_names: tuple[str, ...]
@@ -61,6 +62,7 @@ class Arm:
     accuracy_m: float
     repeatability_m: float
     tool_filtered_links: tuple[str, ...] = ()
+    home: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         for name in ("lower", "upper", "velocity", "acceleration"):
@@ -69,6 +71,19 @@ class Arm:
                 raise ValueError(f"arm {self.name}: {name} must have one value per joint")
             value.setflags(write=False)
             object.__setattr__(self, name, value)
+        if self.home is not None and not (
+            len(self.home) == self.joint_count and self.within_limits(np.array(self.home))
+        ):
+            raise ValueError(f"arm {self.name}: home must be one value per joint, within limits")
+
+    @property
+    def home_q(self) -> np.ndarray:
+        """The home configuration (n,): `home`, else the middle of every joint's range (the
+        arm's own model is its only guide then; an arm file names a home where that middle
+        collides with the cell)."""
+        if self.home is not None:
+            return np.array(self.home, float)
+        return 0.5 * (self.lower + self.upper)
 
     @property
     def joint_count(self) -> int:
@@ -108,6 +123,7 @@ def arm_from_plant(arm_file: ArmFile, plant: ArmPlant, model: tuple[str, str]) -
         identity=repr(arm_file),
         accuracy_m=arm_file.accuracy_m,
         repeatability_m=arm_file.repeatability_m,
+        home=arm_file.home_q_rad,
     )
 
 

@@ -10,6 +10,7 @@
     accuracy_m: 0.0005
     repeatability_m: 0.00003
     ik: {redundant_joint: iiwa_joint_3, redundant_steps: 9, seeds: 24}    # optional
+    home_q_rad: [0, -1.5708, 1.5708, -1.5708, -1.5708, 0]   # optional: where a scan starts
 
 Paths are relative to the arm file. Every error is one line naming the file and the field.
 """
@@ -73,13 +74,14 @@ class ArmFile:
     repeatability_m: float
     joint_limits: tuple[tuple[str, JointLimitFill], ...] = ()
     ik: IkSettings = field(default_factory=IkSettings)
+    home_q_rad: tuple[float, ...] | None = None
 
     def limit_fill(self, joint: str) -> JointLimitFill:
         return dict(self.joint_limits).get(joint, JointLimitFill())
 
 
 _REQUIRED = ("name", "model", "flange_link", "base_pose", "accuracy_m", "repeatability_m")
-_OPTIONAL = ("packages", "joint_limits", "ik")
+_OPTIONAL = ("packages", "joint_limits", "ik", "home_q_rad")
 
 
 def _fail(path: Path, key: str, expected: str, value: object = None) -> ScannerError:
@@ -162,6 +164,12 @@ def _ik(path: Path, value: object) -> IkSettings:
     return settings
 
 
+def _joint_vector(path: Path, key: str, value: object) -> tuple[float, ...]:
+    if not isinstance(value, list) or not value:
+        raise _fail(path, key, "a list of joint positions (rad, or m for a prismatic joint)", value)
+    return tuple(_number(path, f"{key}[{i}]", v) for i, v in enumerate(value))
+
+
 def read_arm_file(path: Path | str) -> ArmFile:
     """The arm file's own checks (syntax, fields, paths); `load_arm_file` adds the model's."""
     path = Path(path).resolve()
@@ -197,4 +205,7 @@ def read_arm_file(path: Path | str) -> ArmFile:
         repeatability_m=_number(path, "repeatability_m", data["repeatability_m"], positive=True),
         joint_limits=_joint_limits(path, data.get("joint_limits") or {}),
         ik=_ik(path, data.get("ik") or {}),
+        home_q_rad=None
+        if data.get("home_q_rad") is None
+        else _joint_vector(path, "home_q_rad", data["home_q_rad"]),
     )

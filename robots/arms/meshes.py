@@ -55,11 +55,25 @@ def _merge_corners(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return vertices, index.reshape(-1, 3).astype(np.int64)
 
 
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Unit normals (N, 3) of the vertices, the area-weighted mean of their faces' (a vertex
+    on no face, or on faces that cancel, gets +z)."""
+    a, b, c = (vertices[triangles[:, k]] for k in range(3))
+    face = np.cross(b - a, c - a)  # its length is twice the face's area
+    normals = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(normals, triangles[:, k], face)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return np.where(length > 0, normals / np.where(length > 0, length, 1.0), [0.0, 0.0, 1.0])
+
+
 def obj_text(vertices: np.ndarray, triangles: np.ndarray) -> str:
-    """Wavefront OBJ of a triangle mesh (OBJ indices start at 1)."""
+    """Wavefront OBJ of a triangle mesh with vertex normals (OBJ indices start at 1). Drake's
+    renderer refuses an OBJ without normals."""
     v = "\n".join(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices)
-    f = "\n".join(f"f {a} {b} {c}" for a, b, c in triangles + 1)
-    return f"{v}\n{f}\n"
+    n = "\n".join(f"vn {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertex_normals(vertices, triangles))
+    f = "\n".join(f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in triangles + 1)
+    return f"{v}\n{n}\n{f}\n"
 
 
 def drake_readable(path: Path, cache: Path | None = None) -> Path:
@@ -73,7 +87,8 @@ def drake_readable(path: Path, cache: Path | None = None) -> Path:
         readable = ", ".join(DRAKE_MESH_SUFFIXES + CONVERTIBLE_SUFFIXES)
         raise ScannerError(f"{path}: mesh format {suffix} is not supported (expected {readable})")
     digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
-    target = (cache or mesh_cache_dir()) / f"{path.stem}-{digest}.obj"
+    # "-n": with normals; conversions cached before they had them keep their old name.
+    target = (cache or mesh_cache_dir()) / f"{path.stem}-{digest}-n.obj"
     if not target.exists():
         target.parent.mkdir(parents=True, exist_ok=True)
         partial = target.with_suffix(f".{os.getpid()}.tmp")

@@ -229,6 +229,19 @@ def add_arm_model(plant: MultibodyPlant, arm_file: ArmFile, text: str, kind: str
     return instance
 
 
+def _check_home(arm_file: ArmFile, lower: list[float], upper: list[float]) -> None:
+    home = arm_file.home_q_rad
+    if home is None:
+        return
+    if len(home) != len(lower) or not all(
+        lo <= q <= hi for q, lo, hi in zip(home, lower, upper, strict=True)
+    ):
+        raise ScannerError(
+            f"{arm_file.path}: home_q_rad: expected {len(lower)} joint positions within the "
+            f"joint limits, got {list(home)}"
+        )
+
+
 def load_arm_plant(arm_file: ArmFile, model: tuple[str, str] | None = None) -> ArmPlant:
     """Parse the arm's model (`model`: its text and kind when already read by `model_text`),
     weld its root at X_WB and read the chain. ScannerError, one line, for a model Drake refuses,
@@ -263,6 +276,7 @@ def load_arm_plant(arm_file: ArmFile, model: tuple[str, str] | None = None) -> A
         }
         for key, (value, given, field_name) in model_values.items():
             limits[key].append(_limit(value, given, arm_file, joint.name(), field_name))
+    _check_home(arm_file, limits["lower"], limits["upper"])
     return ArmPlant(
         diagram=diagram,
         plant=plant,

@@ -45,6 +45,8 @@ ACCELERATION_TIME_S = 0.3
 REPEATABILITY_M = 0.00002
 ACCURACY_M = 0.0005
 TWO_PI = 2 * math.pi
+# Folded: elbow up, camera looking forward and down at the table, well below the object.
+HOME_Q = (0.0, -0.4, 2.3, 0.0, 0.8, 0.0)
 # Below this sin(q5) the wrist is singular: q4 + q6 is fixed, q4 is taken from the seed.
 WRIST_SINGULAR_EPS = 1e-9
 
@@ -373,4 +375,5 @@ def rx60_arm(robot: RX60 = RX60()) -> Arm:
         # self-collision. (Parent/child pairs are filtered by the plant; this pair is two joints
         # apart.)
         tool_filtered_links=("link5",),
+        home=HOME_Q,
     )

@@ -10,7 +10,8 @@ import numpy as np
 
 from reconstruction.depth.camera_model import RgbdCamera
 from reconstruction.stereo.camera_model import StereoCamera, default_stereo_camera
-from robots.arms.rx60 import RX60, rx60_arm
+from robots.arms.arm import Arm
+from robots.arms.default import DEFAULT_ARM
 from robots.cache import cache_dir
 from robots.drivers.interfaces import RobotDriver
 from robots.models import camera_tool
@@ -21,8 +22,8 @@ from robots.simulation.robot import SimulatedRobot
 from robots.simulation.stereo_camera import SimulatedStereoCamera
 from robots.simulation.truth import ErrorModel, Truth, sample_truth
 
-# Folded: elbow up, camera looking forward and down at the table, well below the object.
-HOME_Q = np.array([0.0, -0.4, 2.3, 0.0, 0.8, 0.0])
+# The default arm's home (each arm names its own: Arm.home_q).
+HOME_Q = DEFAULT_ARM.home_q
 
 
 def textured_object(mesh: ObjectMesh, texture_seed: int = 0) -> Path:
@@ -50,8 +51,8 @@ def create_simulation(
     error_model: ErrorModel = ErrorModel(),
     stereo: StereoCamera | None = None,
     X_FC_nominal: np.ndarray | None = None,
-    robot: RX60 = RX60(),
-    q0: np.ndarray = HOME_Q,
+    arm: Arm = DEFAULT_ARM,
+    q0: np.ndarray | None = None,
     meshcat=None,
     extras: Sequence[Callable] = (),
     hanging: int = 0,
@@ -62,7 +63,8 @@ def create_simulation(
 
     `object_spec=None` builds the cell without an object (calibration); `extras` are passed to
     `build_workcell` (e.g. a calibration board). `rgbd`: the tool carries this depth camera
-    (X_FC_nominal then places its colour camera) instead of the stereo pair.
+    (X_FC_nominal then places its colour camera) instead of the stereo pair. `arm` starts at
+    `q0` (None: its home).
     """
     stereo = stereo or default_stereo_camera()
     if X_FC_nominal is None:
@@ -70,8 +72,8 @@ def create_simulation(
     mesh = None if object_spec is None else resolve_object(object_spec, cell.object_size_m)
     if X_WO is None:  # else the pose the operator hung it in (a resumed scan's truth file)
         X_WO = hung_pose(cell.X_WO, error_model.seed, hanging)
-    truth = sample_truth(error_model, X_FC_nominal, stereo, X_WO, rgbd)
-    sim_robot = SimulatedRobot(robot, truth.joint_offsets_rad, q0)
+    truth = sample_truth(error_model, X_FC_nominal, stereo, X_WO, rgbd, arm.joint_count)
+    sim_robot = SimulatedRobot(arm, truth.joint_offsets_rad, arm.home_q if q0 is None else q0)
     return _assemble(cell, mesh, truth, sim_robot, meshcat, extras)
 
 
@@ -92,7 +94,7 @@ def _assemble(
         obj,
         truth.X_FC,
         (truth.rgbd or truth.stereo).X_CR,
-        rx60_arm(sim_robot.robot),
+        sim_robot.arm,
         renderer=True,
         meshcat=meshcat,
         extras=extras,

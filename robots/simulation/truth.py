@@ -39,8 +39,9 @@ class ErrorModel:
     """Seeded deviations of the true world from the nominal model (SI units).
 
     Defaults: hand-eye mount error of 3 mm and 1 deg (a camera bracket mounted with care);
-    encoder zero offsets with a 0.01 deg standard deviation per joint (about 0.1 mm at the
-    RX60's reach); sensor noise of 2 grey levels (8-bit), typical of a CCD at good exposure.
+    encoder zero offsets with a 0.01 deg standard deviation per joint, for any arm (about 0.1 mm
+    at the RX60's reach); sensor noise of 2 grey levels (8-bit), typical of a CCD at good
+    exposure.
     """
 
     seed: int = integer(0, minimum=0, maximum=MAX_SEED)
@@ -101,12 +102,15 @@ def sample_truth(
     stereo: StereoCamera,
     X_WO: np.ndarray,
     rgbd: RgbdCamera | None = None,
+    joint_count: int = 6,
 ) -> Truth:
-    """True X_FC = nominal @ error, the error exactly of the configured size, random direction."""
+    """True X_FC = nominal @ error, the error exactly of the configured size, random direction;
+    one encoder offset per joint of an arm of `joint_count` joints. The offsets are the only
+    error of the arm itself, so the model applies to any serial arm."""
     rng = np.random.default_rng(error_model.seed)
     R_err = rotation_about(_random_unit(rng), error_model.handeye_rotation_rad)
     X_err = make_pose(R_err, error_model.handeye_translation_m * _random_unit(rng))
-    offsets = error_model.joint_offset_std_rad * rng.standard_normal(6)
+    offsets = error_model.joint_offset_std_rad * rng.standard_normal(joint_count)
     return Truth(
         np.asarray(X_FC_nominal, float) @ X_err,
         offsets,

@@ -22,7 +22,7 @@ from robots.simulation.blinking_marker import MarkerConfig
 from robots.simulation.static_camera import StaticCameraConfig
 from robots.simulation.truth import MAX_SEED, ErrorModel
 from scanner.calibrate.stations import StationConfig
-from scanner.configs.references import check_driver, resolve_relative_paths
+from scanner.configs.references import check_driver, check_robot, resolve_relative_paths
 from scanner.configs.typed_yaml import from_dict
 
 
@@ -68,6 +68,8 @@ class CalibrateConfig:
     """Everything `scanner calibrate` uses; every section has defaults (YAML: --config FILE)."""
 
     board: BoardSpec = field(default_factory=_default_board)
+    # The arm, as in a scan configuration: "rx60" or the path of an arm file.
+    robot: str = "rx60"
     placement: BoardPlacement = field(default_factory=BoardPlacement)
     stations: StationConfig = field(default_factory=StationConfig)
     solver: CalibrationSettings = field(default_factory=CalibrationSettings)
@@ -92,6 +94,16 @@ class CalibrateConfig:
     def __post_init__(self) -> None:
         if self.sensor not in ("stereo", "rgbd"):
             raise ScannerError(f"sensor: expected 'stereo' or 'rgbd', got {self.sensor!r}")
+        if not isinstance(self.robot, str) or not self.robot.strip():
+            raise ScannerError(
+                f"robot: expected 'rx60' or the path of an arm file, got {self.robot!r}"
+            )
+        if self.solver.robot_offsets and self.robot != "rx60":
+            # The robot-error model (robots/arms/rx60.py arm_model) is the RX60's link lengths.
+            raise ScannerError(
+                f"solver.robot_offsets: the arm's own errors are modelled for the RX60 only, "
+                f"not for robot {self.robot}"
+            )
         if self.driver and self.hardware is not None:
             raise ScannerError(
                 "hardware: a calibration runs on --driver MODULE:FACTORY or on a hardware: "
@@ -106,6 +118,7 @@ def load_calibrate_config(path: Path | None) -> CalibrateConfig:
         return CalibrateConfig()
     data = resolve_relative_paths(read_yaml(path, "configuration") or {}, Path(path).parent)
     config = from_dict(CalibrateConfig, data, str(path))
+    check_robot(config.robot, f"{path}: robot")
     if config.driver:
         check_driver(config.driver, f"{path}: driver")
     return config

@@ -15,6 +15,7 @@ import numpy as np
 from planners.planner import PlanFailure, Planner
 from reconstruction.common.errors import ScannerError
 from reconstruction.depth.camera_model import CameraModel, camera_model_to_dict
+from robots.arms.default import arm_of
 from robots.cache import cache_dir
 from robots.drivers.connect import close_all, connect_robot, open_camera
 from robots.drivers.interfaces import (
@@ -96,8 +97,9 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
     else:
         sim = _board_cell(config, X_FC, (*fixtures, *extras))
         hardware = Hardware(sim.robot, sim.camera)
+    arm = arm_of(config.robot)
     planner_cell = build_workcell(
-        config.cell, None, X_FC, stereo.X_CR, extras=fixtures, include_object=False
+        config.cell, None, X_FC, stereo.X_CR, arm, extras=fixtures, include_object=False
     )
     planner_config = replace(
         config.planner, cache_dir=config.planner.cache_dir or str(cache_dir() / "roadmaps")
@@ -109,8 +111,8 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
         stereo,
         X_FC,
         config.placement.X_WB(config.board),
-        Kinematics(),
-        Planner(planner_cell, X_FC, stereo.X_CR, planner_config),
+        Kinematics(arm),
+        Planner(planner_cell, X_FC, stereo.X_CR, planner_config, arm),
     )
 
 
@@ -119,7 +121,14 @@ def _board_cell(config: CalibrateConfig, X_FC: np.ndarray, extras) -> Simulation
     rgbd = config.rgbd.rgbd_camera() if config.sensor == "rgbd" else None
     stereo = config.camera.stereo_camera()
     return create_simulation(
-        config.cell, None, config.error_model, stereo, X_FC, extras=extras, rgbd=rgbd
+        config.cell,
+        None,
+        config.error_model,
+        stereo,
+        X_FC,
+        arm=arm_of(config.robot),
+        extras=extras,
+        rgbd=rgbd,
     )
 
 

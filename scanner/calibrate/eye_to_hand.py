@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from pydrake.math import RigidTransform
 
 from planners.ik import look_at_rotation
 from reconstruction.calibration.eye_to_hand import (
@@ -25,7 +26,6 @@ from reconstruction.calibration.eye_to_hand import (
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import make_pose, pose_difference, transform_points
 from reconstruction.stereo.camera_model import StereoCamera, stereo_camera_to_dict
-from robots.arms.rx60 import ik_flange
 from robots.cache import cache_dir
 from robots.simulation.blinking_marker import BlinkingMarker
 from robots.simulation.static_camera import StaticStereoCamera
@@ -85,7 +85,7 @@ class _MarkerSession:
         robot = self.world.sim.robot
         X_WF = _marker_flange_pose(p_WM, np.array(self.settings.camera.position_m), self.p_FM)
         q_now = robot.joint_positions()
-        qs = [q for q in ik_flange(robot.robot, X_WF, q_now) if self.world.is_free(q)]
+        qs = [q for q in robot.arm.ik(RigidTransform(X_WF), q_now) if self.world.is_free(q)]
         if not qs:
             return "unreachable or in collision"
         q = min(qs, key=lambda q: float(np.abs(q - q_now).max()))

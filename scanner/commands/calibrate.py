@@ -22,6 +22,7 @@ from scanner.calibrate.offline import (
 )
 from scanner.calibrate.report import error_text, quality_lines
 from scanner.configs.flags import for_flag
+from scanner.configs.references import absolute_arm_file, check_robot
 from scanner.reconstruct.progress import ProgressBar
 from scanner.scan_dir.results_folder import require_replaceable
 
@@ -112,6 +113,9 @@ def _config(args: argparse.Namespace) -> CalibrateConfig:
         config = replace(config, stations=stations)
     if args.sensor is not None:
         config = for_flag("--sensor", lambda: replace(config, sensor=args.sensor))
+    if args.robot is not None:
+        check_robot(args.robot, "--robot")
+        config = replace(config, robot=absolute_arm_file(args.robot))
     if args.driver is not None:
         if args.offline is not None:
             raise ScannerError("--offline calibrates recorded data; do not give --driver")
@@ -124,7 +128,8 @@ def _config(args: argparse.Namespace) -> CalibrateConfig:
             raise ScannerError(
                 "--robot-offsets applies to eye-in-hand calibrations, not --eye-to-hand"
             )
-        config = replace(config, solver=replace(config.solver, robot_offsets=True))
+        solver = replace(config.solver, robot_offsets=True)
+        config = for_flag("--robot-offsets", lambda: replace(config, solver=solver))
     e2h = config.eye_to_hand
     if args.held_out is not None:
         e2h = for_flag("--held-out", lambda: replace(e2h, held_out=args.held_out))

@@ -84,6 +84,15 @@ def _add_run_arguments(calibrate: argparse.ArgumentParser) -> None:
         "(default %(config_default)s)",
         config=ConfigDefault(CALIBRATE_CONFIG, "sensor"),
     )
+    add_config_option(
+        calibrate,
+        "--robot",
+        type=name_arg,
+        metavar="ARM",
+        help="the arm: rx60 (the Staubli RX60) or the path of an arm file "
+        "(default %(config_default)s)",
+        config=ConfigDefault(CALIBRATE_CONFIG, "robot"),
+    )
     calibrate.add_argument(
         "--robot-offsets",
         action="store_true",

@@ -107,6 +107,15 @@ def add_scan_parser(sub) -> None:
     )
     add_config_option(
         scan,
+        "--robot",
+        type=name_arg,
+        metavar="ARM",
+        help="the arm: rx60 (the Staubli RX60) or the path of an arm file, e.g. "
+        "scanner/configs/arms/ur5e.yaml (default %(config_default)s)",
+        config=ConfigDefault(SCAN_CONFIG, "robot"),
+    )
+    add_config_option(
+        scan,
         "--sensor",
         type=name_arg,
         help="what measures depth: stereo (the stereo pair, SGBM) or rgbd (a depth camera with "
@@ -210,6 +219,7 @@ def run_scan_command(args: argparse.Namespace) -> int:
         intruder_start_s=args.intruder,
         operator=args.operator,
         sensor=args.sensor,
+        robot=args.robot,
     )
     if args.plan_only and (args.resume is not None or args.meshcat):
         raise ScannerError("--plan-only plans a new scan: do not give --resume or --meshcat")

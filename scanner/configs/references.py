@@ -1,5 +1,6 @@
 """What a scan configuration names outside itself: the object (a built-in name or a mesh file),
-the calibration file, the driver module, the roadmap cache and the cameras' recordings.
+the arm (a built-in name or an arm file), the calibration file, the driver module, the roadmap
+cache and the cameras' recordings.
 
 A relative path in a configuration file is read from the file's own folder (a configuration
 travels with its calibration and meshes; the working folder is wherever the user happens to
@@ -24,6 +25,13 @@ def _is_mesh_path(spec: str) -> bool:
     return Path(spec).suffix.lower() in MESH_SUFFIXES
 
 
+def _names_arm_file(robot: str) -> bool:
+    """A YAML path, not a built-in arm (a mistyped name stays as typed in the error)."""
+    from robots.arms.default import is_arm_file
+
+    return is_arm_file(robot) and Path(robot).suffix.lower() in (".yaml", ".yml")
+
+
 def _is_recording(source) -> bool:
     """A camera source that is a file or an image-sequence pattern (`rec/left_%04d.png`), not
     a device index, a device path or a URL."""
@@ -44,6 +52,7 @@ def resolve_relative_paths(data: dict, folder: Path) -> dict:
         return data
     folder = Path(folder).absolute()
     data = _moved(data, "calibration_file", folder, _relative)
+    data = _moved(data, "robot", folder, lambda v: _relative(v) and _names_arm_file(v))
     data = _moved(data, "object", folder, lambda v: _relative(v) and _is_mesh_path(v))
     if isinstance(data.get("planner"), dict):
         data = {**data, "planner": _moved(data["planner"], "cache_dir", folder, _relative)}
@@ -86,9 +95,25 @@ def check_driver(spec: str, name: str) -> None:
     _named(name, lambda: driver_factory(spec))
 
 
+def check_robot(robot: str, name: str) -> None:
+    """`robot` is a built-in arm or an arm file that loads (its model parsed now)."""
+    from robots.arms.default import arm_of
+
+    _named(name, lambda: arm_of(robot))
+
+
+def absolute_arm_file(robot: str) -> str:
+    """A flag's arm file as an absolute path: the configuration is saved with the scan and
+    read again from elsewhere (a resume, a reconstruction)."""
+    from robots.arms.default import is_arm_file
+
+    return str(Path(robot).resolve()) if is_arm_file(robot) else robot
+
+
 def check_references(config, where: str) -> None:
     """Everything `config` (a ScanConfig loaded from `where`) names outside itself."""
     check_object(config.object, config.cell.object_size_m, f"{where}: object")
+    check_robot(config.robot, f"{where}: robot")
     if config.calibration_file:
         check_calibration_file(config.calibration_file, f"{where}: calibration_file")
     if config.driver:

@@ -24,10 +24,12 @@ from robots.models.workcell import WorkcellConfig
 from robots.simulation.truth import ErrorModel
 from scanner.configs.flags import for_flag
 from scanner.configs.references import (
+    absolute_arm_file,
     check_calibration_file,
     check_driver,
     check_object,
     check_references,
+    check_robot,
     resolve_relative_paths,
 )
 from scanner.configs.typed_yaml import from_dict, to_dict
@@ -94,6 +96,9 @@ AUTO = "auto"
 @dataclass(frozen=True)
 class ScanConfig:
     object: str = "vase"
+    # The arm: "rx60" (the Staubli RX60, closed-form kinematics) or the path of an arm file
+    # (robots/arms/arm_file.py; e.g. scanner/configs/arms/ur5e.yaml).
+    robot: str = "rx60"
     cell: WorkcellConfig = field(default_factory=WorkcellConfig)
     # The nominal stereo camera (what the software believes; the simulator's truth equals it
     # unless a calibration file says otherwise).
@@ -142,6 +147,10 @@ class ScanConfig:
         if not 0 < self.coverage_target <= 1:
             raise ScannerError(
                 f"coverage_target: expected a fraction in (0, 1], got {self.coverage_target}"
+            )
+        if not isinstance(self.robot, str) or not self.robot.strip():
+            raise ScannerError(
+                f"robot: expected 'rx60' or the path of an arm file, got {self.robot!r}"
             )
         if self.sensor not in SENSORS:
             raise ScannerError(f"sensor: expected one of {', '.join(SENSORS)}, got {self.sensor!r}")
@@ -217,6 +226,7 @@ def with_overrides(
     intruder_start_s: tuple[float, ...] | None = None,
     operator: str | None = None,
     sensor: str | None = None,
+    robot: str | None = None,
 ) -> ScanConfig:
     """Command-line flags win over the file; each override is validated like the file, and
     an error names the flag."""
@@ -245,6 +255,9 @@ def with_overrides(
         config = replace(config, calibration_file=calibration_file)
     if sensor is not None:
         config = for_flag("--sensor", lambda: replace(config, sensor=sensor))
+    if robot is not None:
+        check_robot(robot, "--robot")
+        config = replace(config, robot=absolute_arm_file(robot))
     if driver is not None:
         check_driver(driver, "--driver")
         config = replace(config, driver=driver)

@@ -178,7 +178,7 @@ def plan_scan(config: ScanConfig, world: ScanWorld) -> ScanPlan:
     q_now = q_home
     count = len(views) // config.first_hangings
     dropped = _dropped(world, config, plan, q_home) if plan is not None else unreachable
-    kinematics = Kinematics()
+    kinematics = Kinematics(world.arm)
     for p in range(config.first_hangings):
         todo = views[p * count : (p + 1) * count]
         first = 1 + sum(v.order is not None for v in viewpoints)

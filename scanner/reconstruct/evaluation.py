@@ -32,15 +32,17 @@ def _true_eyes(
     """True left and right camera centres (2, 3) of every view (by capture index), in the first
     hanging's frame (`to_first`: per hanging, the true transform of its placement onto the
     first's); none of the hangings `left_out` of the model."""
+    from robots.arms.default import arm_of
     from robots.models.kinematics import Kinematics
 
     hanging_of = {i: h for h, indices in enumerate(views.hangings) for i in indices}
-    kin = Kinematics()
+    kinematics = {robot: Kinematics(arm_of(robot)) for robot in set(views.robots)}
     eyes = {}
     for i, q in views.joints.items():
         if hanging_of[i] in left_out:
             continue
         truth = views.truths[views.scan_of[i]][0]
+        kin = kinematics[views.robots[views.scan_of[i]]]
         X_WC = kin.X_WF(q + truth.joint_offsets_rad) @ truth.X_FC
         eyes[i] = transform_points(
             to_first[hanging_of[i]], (truth.rgbd or truth.stereo).eye_centres_W(X_WC)

@@ -152,10 +152,12 @@ def load_truth_of(scan_dir: Path):
 def geometry_filter(
     config: ScanConfig, X_FC: np.ndarray, stereo: CameraModel, joints: dict, margin_m: float
 ):
+    from robots.arms.default import arm_of
     from robots.models.point_filter import make_geometry_filter
     from robots.models.workcell import build_workcell
 
-    keep = make_geometry_filter(build_workcell(config.cell, None, X_FC, stereo.X_CR), margin_m)
+    cell = build_workcell(config.cell, None, X_FC, stereo.X_CR, arm_of(config.robot))
+    keep = make_geometry_filter(cell, margin_m)
     return lambda points_W, index: keep(points_W, joints[index])
 
 
@@ -190,6 +192,7 @@ class Gathered:
     truths: list  # per scan: (Truth, true surface, truth file) or None
     remove: object  # remove_points(points_W, index) for all scans
     fixtures: list[FixtureLine] = field(default_factory=list)  # per hanging, its rod's line
+    robots: list[str] = field(default_factory=list)  # per scan, its configuration's arm
 
 
 def gather_views(
@@ -224,6 +227,7 @@ def gather_views(
         out.fixtures.extend(fixture_line(scan.config) for _ in scan.hangings)
         out.scan_of.update({v.index + offset: k for v in captured.views})
         out.truths.append(load_truth_of(scan.root))
+        out.robots.append(scan.config.robot)
         filters.append(
             geometry_filter(scan.config, X, camera, captured.joints, processing.remove_margin_m)
         )

@@ -11,7 +11,6 @@ import numpy as np
 from planners.ik import Viewpoint, camera_pose, ik_camera, look_at_rotation, rig_centre_offset
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.sphere import fibonacci_directions
-from robots.arms.rx60 import rx60_arm
 from robots.models import camera_tool
 from robots.models.workcell import WorkcellConfig
 from robots.simulation.cell import HOME_Q, create_simulation
@@ -34,7 +33,7 @@ def first_reachable_view(sim, radius_m: float) -> tuple[Viewpoint, np.ndarray]:
     X_MC = rig_centre_offset(sim.truth.stereo.X_CR)
     preferred = np.array([-1.0, 0.0, -0.3]) / np.linalg.norm([-1.0, 0.0, -0.3])
     directions = fibonacci_directions(400)
-    arm = rx60_arm(sim.robot.robot)
+    arm = sim.robot.arm
     for d in directions[np.argsort(-directions @ preferred)]:
         vp = Viewpoint(tuple(c + radius_m * d), tuple(c), 0.0)
         solutions = ik_camera(arm, camera_pose(vp, X_MC), X_FC, HOME_Q)

@@ -139,7 +139,7 @@ def _live_view(world: ScanWorld, meshcat) -> object | None:
         return None
     from robots.simulation.live_view import LiveView
 
-    live = LiveView(world.shown_cell, meshcat, Kinematics().X_WF)
+    live = LiveView(world.shown_cell, meshcat, Kinematics(world.arm).X_WF)
     live.show(world.robot.joint_positions() + world.joint_offsets_rad)
     return live
 

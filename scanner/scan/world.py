@@ -19,6 +19,8 @@ from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.stereo.cloud import view_cloud
 from reconstruction.stereo.params import disparity_window, object_depth_window
 from reconstruction.stereo.rectification import compute_rectification
+from robots.arms.arm import Arm
+from robots.arms.default import DEFAULT_ROBOT, arm_of
 from robots.cache import cache_dir
 from robots.drivers.connect import close_all, connect_robot, open_camera, open_depth_camera
 from robots.drivers.interfaces import (
@@ -83,21 +85,31 @@ class ScanWorld:
 
     @property
     def joint_offsets_rad(self) -> np.ndarray:
-        return self.sim.truth.joint_offsets_rad if self.sim else np.zeros(6)
+        return self.sim.truth.joint_offsets_rad if self.sim else np.zeros(self.arm.joint_count)
+
+    @property
+    def arm(self) -> Arm:
+        return self.planner.arm
 
 
 def software_kinematics(config: ScanConfig):
     """X_WF(q) as the software computes the flange pose from the joints the robot reports: the
-    RX60 as drawn, or as the calibration file's robot correction found it (joint zero offsets,
-    link lengths; `scanner calibrate --robot-offsets`), so that every capture's pose carries
-    the arm's own errors as the calibration measured them."""
+    configured arm as drawn, or as the calibration file's robot correction found it (joint zero
+    offsets, link lengths; `scanner calibrate --robot-offsets`), so that every capture's pose
+    carries the arm's own errors as the calibration measured them."""
     from robots.models.kinematics import Kinematics, corrected_kinematics
 
     correction = None
     if config.calibration_file:
         correction = load_calibration(Path(config.calibration_file)).robot
     if correction is None:
-        return Kinematics().X_WF
+        return Kinematics(arm_of(config.robot)).X_WF
+    if config.robot != DEFAULT_ROBOT:
+        # The correction's link lengths are the RX60's (robots/arms/rx60.py LINK_LENGTHS).
+        raise ScannerError(
+            f"calibration_file: its robot correction models the RX60's links; robot "
+            f"{config.robot} cannot use it (calibrate without --robot-offsets)"
+        )
     return corrected_kinematics(correction.joint_offsets_rad, correction.link_length_corrections_m)
 
 
@@ -174,6 +186,7 @@ def simulated_cell(
         config.error_model,
         design,
         X_FC,
+        arm=arm_of(config.robot),
         meshcat=meshcat,
         hanging=hanging,
         X_WO=X_WO,
@@ -203,12 +216,15 @@ def setup_world(
             )
     else:
         sim = simulated_cell(config, meshcat, hanging, X_WO)
+    arm = arm_of(config.robot)
     planner_cell = build_workcell(
-        config.cell, None, X_FC, model.X_CR, meshcat=meshcat if hardware else None
+        config.cell, None, X_FC, model.X_CR, arm, meshcat=meshcat if hardware else None
     )
     # Scans always cache the roadmap (a second scan of the same cell starts at once).
     roadmaps = config.planner.cache_dir or str(cache_dir() / "roadmaps")
-    planner = Planner(planner_cell, X_FC, model.X_CR, replace(config.planner, cache_dir=roadmaps))
+    planner = Planner(
+        planner_cell, X_FC, model.X_CR, replace(config.planner, cache_dir=roadmaps), arm
+    )
     if hardware:
         device_model = getattr(hardware.camera, "rgbd_camera", None)
         if device_model is not None:

@@ -272,8 +272,11 @@ class CaptureStore:
                 raise ScannerError(f"{d}: pose_index {meta['pose_index']} != folder {index}")
         except (KeyError, TypeError, ValueError) as e:
             raise ScannerError(f"{d / 'capture.yaml'}: missing or malformed field ({e})") from None
-        if q.shape != (6,) or not np.all(np.isfinite(q)):
-            raise ScannerError(f"{d / 'capture.yaml'}: q_rad must be 6 finite numbers")
+        # One value per joint of the scan's arm (the manifest's robot and config name it).
+        if q.ndim != 1 or not q.size or not np.all(np.isfinite(q)):
+            raise ScannerError(
+                f"{d / 'capture.yaml'}: q_rad must be a list of finite joint positions"
+            )
         if X_WF.shape != (4, 4) or not np.all(np.isfinite(X_WF)):
             raise ScannerError(f"{d / 'capture.yaml'}: X_WF must be a finite 4x4 matrix")
         sensor = meta.get("sensor", "stereo")

@@ -22,7 +22,7 @@ from reconstruction.depth.camera_model import (
     camera_model_from_dict,
     camera_model_to_dict,
 )
-from robots.arms.rx60 import RX60, rx60_urdf
+from robots.arms.default import arm_of, is_arm_file
 from scanner.configs.scan import ScanConfig, scan_config_from_dict, scan_config_to_dict
 from scanner.scan_dir.captures import CaptureStore
 from scanner.scan_dir.views import PlannedView, ViewOption
@@ -62,6 +62,22 @@ def views_from_manifest(items: list[dict], where: str) -> list[PlannedView]:
         raise ScannerError(f"{where}: malformed viewpoint list ({e})") from None
 
 
+def robot_entry(robot: str) -> dict:
+    """The manifest's record of the arm `robot` names: its name, its joints, the SHA-256 of its
+    model text (which model the captures' joints belong to) and, for an arm file, its path.
+    Scans written before arms were configurable hold {model: staubli_rx60, urdf_sha256} (the
+    same hash of the same URDF); nothing reads this entry back, it documents the scan."""
+    arm = arm_of(robot)
+    entry = {
+        "name": arm.name,
+        "joint_names": list(arm.joint_names),
+        "model_sha256": hashlib.sha256(arm.model_text.encode()).hexdigest(),
+    }
+    if is_arm_file(robot):
+        entry["arm_file"] = str(Path(robot).resolve())
+    return entry
+
+
 def new_manifest(
     config: ScanConfig,
     camera_model: CameraModel,
@@ -70,16 +86,12 @@ def new_manifest(
     plan_info: dict,
 ) -> dict:
     """The manifest of a new scan (the store adds schema, status and time stamps)."""
-    urdf = rx60_urdf(RX60())
     return {
         "object": config.object,
         "config": scan_config_to_dict(config),
         "camera": camera_model_to_dict(camera_model),
         "X_FC_nominal": X_FC.tolist(),
-        "robot": {
-            "model": "staubli_rx60",
-            "urdf_sha256": hashlib.sha256(urdf.encode()).hexdigest(),
-        },
+        "robot": robot_entry(config.robot),
         "pose_count": len(views),
         "viewpoints": views_to_manifest(views),
         **plan_info,

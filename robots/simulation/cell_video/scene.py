@@ -14,7 +14,7 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import SpatialInertia
 
 from reconstruction.common.transforms import invert, transform_points
-from robots.arms.rx60 import RX60, rx60_arm
+from robots.arms.arm import Arm
 from robots.models.objects import ObjectMesh
 from robots.models.workcell import WorkcellConfig, build_workcell, placed_object
 from robots.simulation.cell import textured_object
@@ -83,7 +83,7 @@ class VideoScene:
         cell: WorkcellConfig,
         object_mesh: ObjectMesh | None,
         truth: Truth,
-        robot: RX60,
+        arm: Arm,
         paths: tuple[IntruderPath, ...],
         roi_rendering: bool,
     ) -> None:
@@ -102,7 +102,7 @@ class VideoScene:
             obj,
             truth.X_FC,
             truth.stereo.X_CR,
-            rx60_arm(robot),
+            arm,
             renderer=True,
             extras=(self._intruders,),
             include_object=object_mesh is not None,

@@ -17,7 +17,8 @@ import numpy as np
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.stereo.camera_model import StereoCamera
-from robots.arms.rx60 import RX60
+from robots.arms.arm import Arm
+from robots.arms.default import DEFAULT_ARM
 from robots.drivers.interfaces import JointTrajectory
 from robots.models.objects import ObjectMesh
 from robots.models.workcell import WorkcellConfig
@@ -96,7 +97,7 @@ class CellVideo:
         truth: Truth,
         camera: StaticCameraConfig = DEFAULT_STATIC_CAMERA,
         paths: Sequence[IntruderPath] = (),
-        robot: RX60 = RX60(),
+        arm: Arm = DEFAULT_ARM,
         fps: float = DEFAULT_FPS,
         X_WS_software: np.ndarray | None = None,
         roi_rendering: bool = True,
@@ -112,7 +113,7 @@ class CellVideo:
         self.X_WS = np.array(camera.X_WS, float)
         self.X_WS.setflags(write=False)
         self._X_WS_software = self.X_WS if X_WS_software is None else np.array(X_WS_software)
-        self._scene = VideoScene(cell, object_mesh, truth, robot, self.paths, roi_rendering)
+        self._scene = VideoScene(cell, object_mesh, truth, arm, self.paths, roi_rendering)
         self._left = _RenderedCamera(self.stereo.left)
         self._right = _RenderedCamera(self.stereo.right)
         self._half = _RenderedCamera(half_camera(self.stereo.left))
@@ -134,7 +135,7 @@ class CellVideo:
     ) -> CellVideo:
         """The video of the world a scan runs in (its cell, object, errors and robot)."""
         return cls(
-            sim.workcell.config, sim.object_mesh, sim.truth, camera, paths, sim.robot.robot, fps
+            sim.workcell.config, sim.object_mesh, sim.truth, camera, paths, sim.robot.arm, fps
         )
 
     @staticmethod
