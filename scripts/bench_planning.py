@@ -29,8 +29,9 @@ import time
 import numpy as np
 
 from planners.collision import CollisionChecker
+from planners.config import PlannerConfig
 from planners.ik import Viewpoint, camera_pose, rig_centre_offset
-from planners.planner import Planner, PlannerConfig
+from planners.planner import Planner
 from planners.timing import Trajectory
 from planners.validation import dense_times
 from reconstruction.common.sphere import fibonacci_directions

@@ -12,7 +12,8 @@ import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 from planners.collision import CollisionChecker
-from planners.planner import Planner, PlannerConfig, Trajectory
+from planners.config import PlannerConfig
+from planners.planner import Planner, Trajectory
 from reconstruction.stereo.camera_model import default_stereo_camera
 from robots.arms.arm import load_arm
 from robots.arms.default import DEFAULT_ARM

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from planners.planner import PlannerConfig
+from planners.config import PlannerConfig
 from reconstruction.calibration.boards import BoardSpec
 from reconstruction.calibration.eye_to_hand import MarkerDetectionSettings
 from reconstruction.calibration.settings import CalibrationSettings

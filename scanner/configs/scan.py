@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from planners.planner import PlannerConfig
+from planners.config import PlannerConfig
 from reconstruction.common.checks import check_fields, fraction, integer, non_negative, positive
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.yaml_files import read_yaml
