@@ -20,6 +20,7 @@ from pydrake.multibody.tree import ModelInstanceIndex
 
 from robots.arms.arm_file import ArmFile, read_arm_file
 from robots.arms.general_ik import solve_ik
+from robots.arms.limits import within_limits
 from robots.arms.model import ArmPlant, add_arm_model, load_arm_plant, model_text
 
 
@@ -90,12 +91,7 @@ class Arm:
         return len(self.joint_names)
 
     def within_limits(self, q: np.ndarray, tol_rad: float = 1e-9) -> bool:
-        q = np.asarray(q, dtype=float)
-        return bool(
-            np.all(np.isfinite(q))
-            and np.all(q >= self.lower - tol_rad)
-            and np.all(q <= self.upper + tol_rad)
-        )
+        return within_limits(q, self.lower, self.upper, tol_rad)
 
 
 def arm_from_plant(arm_file: ArmFile, plant: ArmPlant, model: tuple[str, str]) -> Arm:

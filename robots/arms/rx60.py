@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from reconstruction.calibration.robot_errors import ArmModel
+from robots.arms.limits import within_limits
 
 # Drake is imported only where the arm's model is made: the controller emulator and the command
 # line's parser read the RX60's numbers and must not wait for it.
@@ -106,12 +107,7 @@ class RX60:
         return replace(self, **{k: getattr(self, k) + float(v) for k, v in corrections_m.items()})
 
     def within_limits(self, q: np.ndarray, tol_rad: float = 1e-9) -> bool:
-        q = np.asarray(q, dtype=float)
-        return bool(
-            np.all(np.isfinite(q))
-            and np.all(q >= self.lower - tol_rad)
-            and np.all(q <= self.upper + tol_rad)
-        )
+        return within_limits(q, self.lower, self.upper, tol_rad)
 
 
 ROBOT_MODEL_NAME = "rx60"
