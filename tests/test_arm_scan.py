@@ -152,3 +152,23 @@ def test_the_calibration_cell_is_built_for_the_configured_arm():
     assert world.planner.arm.name == world.sim.robot.arm.name == "ur5e"
     assert world.kinematics.arm.name == "ur5e"
     assert world.is_free(world.robot.joint_positions())
+
+
+def test_a_calibration_with_the_rx60s_own_errors_is_refused_for_another_arms_scan(
+    ur5e_scan, tmp_path
+):
+    """Joint offsets and link lengths estimated for the RX60 would move another arm's flange
+    poses by another chain's kinematics: refused in one line before anything is written."""
+    from reconstruction.calibration.file import Calibration, RobotCorrection, save_calibration
+    from scanner.configs.scan import ScanConfig
+    from scanner.reconstruct.command import ReconstructOptions, reconstruct_one
+
+    stereo = ScanConfig().camera.stereo_camera()
+    robot = RobotCorrection((0.0, 1e-4, 0.0, 0.0, 0.0, 0.0), {})
+    path = save_calibration(
+        Calibration(np.eye(4), stereo, stereo.left, robot=robot), tmp_path / "c.yaml"
+    )
+    out = tmp_path / "out"
+    with pytest.raises(ScannerError, match="joint offsets and link lengths are the RX60's"):
+        reconstruct_one(ur5e_scan.scan_dir, ReconstructOptions(calibration=path, out=out))
+    assert not out.exists()

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from reconstruction.common.errors import ScannerError
 from scanner.reconstruct.stages import ReconstructRun
 
 
@@ -68,8 +69,15 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
             stereo = calibrated_model(scan.camera_model, calibration, str(options.calibration))
         if calibration.robot is not None:
             # X_FC was estimated with the arm's own errors: the poses must carry them too.
+            from robots.arms.default import DEFAULT_ROBOT
             from robots.models.kinematics import corrected_kinematics
 
+            if scan.config.robot != DEFAULT_ROBOT:
+                raise ScannerError(
+                    f"--calibration {options.calibration}: its joint offsets and link lengths "
+                    f"are the RX60's, this scan's arm is {scan.config.robot}: calibrate "
+                    f"without solver.robot_offsets for it"
+                )
             robot = calibration.robot
             scan = replace(
                 scan,
