@@ -18,6 +18,7 @@ from scanner.commands.monitor import add_monitor_parser
 from scanner.commands.reconstruct import add_merge_parser, add_reconstruct_parser
 from scanner.commands.scan import add_preview_parser, add_scan_parser
 from scanner.commands.view import add_view_parser
+from scanner.recordings.import_command import add_import_recording_parser
 from scanner.scan_dir.outputs import claim_output, command_output, input_paths
 from scanner.scan_dir.results_folder import require_creatable
 
@@ -39,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_preview_parser(sub)
     add_export_parser(sub)
     add_import_parser(sub)
+    add_import_recording_parser(sub)
     add_inspect_parser(sub)
     add_view_parser(sub)
     add_monitor_parser(sub)
