@@ -28,8 +28,8 @@ from reconstruction.recordings.colmap_model import (
 )
 from reconstruction.recordings.recording import (
     IMAGE_SUFFIXES,
-    Recording,
     RecordedView,
+    Recording,
     masks_in_order,
     sorted_files,
 )
@@ -67,7 +67,7 @@ def pinhole_of(camera: ColmapCamera, where: str) -> PinholeCamera:
     elif camera.model == "PINHOLE":
         (fx, fy, cx, cy), dist = p, [0.0] * 5
     elif camera.model == "SIMPLE_RADIAL":
-        (fx, cx, cy, k), fy, dist = p, p[0], [p[3], 0.0, 0.0, 0.0, 0.0]
+        (fx, cx, cy, _), fy, dist = p, p[0], [p[3], 0.0, 0.0, 0.0, 0.0]
     elif camera.model == "RADIAL":
         (fx, cx, cy, _, _), fy, dist = p, p[0], [p[3], p[4], 0.0, 0.0, 0.0]
     elif camera.model == "OPENCV":
@@ -191,7 +191,9 @@ def read_colmap(
                 f"image of {where} in {images_dir}"
             )
         paths.append(path)
-    mask_paths = masks_in_order(masks, len(paths), paths) if masks is not None else [None] * len(paths)
+    mask_paths = (
+        masks_in_order(masks, len(paths), paths) if masks is not None else [None] * len(paths)
+    )
     views = []
     for k, image in enumerate(ordered):
         if image.camera_id not in model.cameras:

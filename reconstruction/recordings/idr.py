@@ -21,8 +21,8 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import make_pose
 from reconstruction.recordings.recording import (
     IMAGE_SUFFIXES,
-    Recording,
     RecordedView,
+    Recording,
     image_size,
     masks_in_order,
     sorted_files,
@@ -108,7 +108,9 @@ def check_split(
 
 
 def _view_count(data, path: Path) -> int:
-    indices = sorted(int(m.group(1)) for k in data.files if (m := re.fullmatch(r"world_mat_(\d+)", k)))
+    indices = sorted(
+        int(m.group(1)) for k in data.files if (m := re.fullmatch(r"world_mat_(\d+)", k))
+    )
     if not indices:
         raise ScannerError(f"{path}: no world_mat_0, world_mat_1, ...; expected an IDR camera file")
     if indices != list(range(len(indices))):

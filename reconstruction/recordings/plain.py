@@ -20,7 +20,7 @@ import numpy as np
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.yaml_files import read_yaml
-from reconstruction.recordings.recording import Recording, RecordedView, image_size
+from reconstruction.recordings.recording import RecordedView, Recording, image_size
 from reconstruction.stereo.camera_model import CameraModelError, PinholeCamera
 
 FORMAT = "plain"
@@ -105,7 +105,9 @@ def _view(i: int, d, top: dict, folder: Path, unit_m: float, where: str) -> Reco
     if "K" not in d and "K" not in top:
         raise ScannerError(f"{where}: missing K (per view, or at the top for every view)")
     K = _matrix(d.get("K", top.get("K")), (3, 3), f"{where}.K")
-    dist = _matrix(d.get("distortion", top.get("distortion", [0.0] * 5)), (5,), f"{where}.distortion")
+    dist = _matrix(
+        d.get("distortion", top.get("distortion", [0.0] * 5)), (5,), f"{where}.distortion"
+    )
     size = d.get("image_size", top.get("image_size"))
     if size is None:
         width, height = image_size(image)
@@ -134,7 +136,9 @@ def _view(i: int, d, top: dict, folder: Path, unit_m: float, where: str) -> Reco
         depth = _path(folder, d["depth"], f"{where}.depth")
         if "depth_unit_m" not in d and "depth_unit_m" not in top:
             raise ScannerError(f"{where}: a depth image needs depth_unit_m (metres per count)")
-        depth_scale_m = _number(d.get("depth_unit_m", top.get("depth_unit_m")), f"{where}.depth_unit_m")
+        depth_scale_m = _number(
+            d.get("depth_unit_m", top.get("depth_unit_m")), f"{where}.depth_unit_m"
+        )
         if depth_scale_m <= 0:
             raise ScannerError(f"{where}.depth_unit_m: expected a positive number")
     return RecordedView(i, image, camera, X_WC, mask, depth, depth_scale_m, X_WF)

@@ -198,9 +198,7 @@ def check_recording(rec: Recording, min_baseline_m: float = MIN_BASELINE_M) -> N
 
 def sorted_files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
     """The files of `folder` with one of `suffixes` (case-insensitive), sorted by name."""
-    return sorted(
-        p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in suffixes
-    )
+    return sorted(p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in suffixes)
 
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")

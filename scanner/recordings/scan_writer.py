@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from reconstruction.recordings.recording import (
-    Recording,
     RecordedView,
+    Recording,
     read_depth_counts,
     read_image_rgb,
     read_mask,

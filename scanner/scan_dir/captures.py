@@ -313,8 +313,7 @@ class CaptureStore:
             return Capture(index, count, q, X_WF, stamp, color, None, depth, scale)
         if sensor != "stereo":
             raise ScannerError(
-                f"{d / 'capture.yaml'}: sensor: expected 'stereo', 'rgbd' or 'mono', got "
-                f"{sensor!r}"
+                f"{d / 'capture.yaml'}: sensor: expected 'stereo', 'rgbd' or 'mono', got {sensor!r}"
             )
         images = [
             _read_rgb(d / str(meta.get(name, f"{name}.png")), width, height)
@@ -373,9 +372,7 @@ def _read_mono(
                 f"{path}: mask is {mask.shape[1]}x{mask.shape[0]}, expected {width}x{height}"
             )
     depth, scale = (None, 0.0) if "depth" not in meta else read_depth(d, meta)
-    return Capture(
-        index, count, q, X_WF, stamp, image, None, depth, scale, mask, camera, X_WC
-    )
+    return Capture(index, count, q, X_WF, stamp, image, None, depth, scale, mask, camera, X_WC)
 
 
 def _read_rgb(path: Path, width: int, height: int) -> np.ndarray:
