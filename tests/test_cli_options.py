@@ -295,8 +295,8 @@ def no_work(monkeypatch):
     import scanner.calibrate.eye_to_hand
     import scanner.calibrate.offline
     import scanner.inspect.inspection
-    import scanner.recordings.scan_writer
     import scanner.reconstruct.scan_views
+    import scanner.recordings.scan_writer
     import scanner.scan.preview
 
     monkeypatch.setattr(planners.planner.Planner, "__init__", _tripwire)

@@ -13,12 +13,12 @@ from scanner.commands.arguments import ScannerArgumentParser
 from scanner.commands.calibrate_arguments import add_calibrate_parser
 from scanner.commands.cell import add_check_cell_parser, add_emulate_parser
 from scanner.commands.exchange import add_export_parser, add_import_parser
+from scanner.commands.import_recording import add_import_recording_parser
 from scanner.commands.inspect import add_inspect_parser
 from scanner.commands.monitor import add_monitor_parser
 from scanner.commands.reconstruct import add_merge_parser, add_reconstruct_parser
 from scanner.commands.scan import add_preview_parser, add_scan_parser
 from scanner.commands.view import add_view_parser
-from scanner.recordings.import_command import add_import_recording_parser
 from scanner.scan_dir.outputs import claim_output, command_output, input_paths
 from scanner.scan_dir.results_folder import require_creatable
 
