@@ -457,3 +457,35 @@ def test_an_out_folder_that_is_not_empty_is_refused(tmp_path, capfd):
     r = scanner(capfd, "import-recording", folder, "--out", tmp_path / "first")
     assert r.returncode == 2 and "is not empty" in r.stderr
     assert (tmp_path / "first" / "scan.yaml").read_bytes() == before
+
+
+def test_scale_and_format_options_are_checked(tmp_path, capfd):
+    folder, _, _ = plain_recording(tmp_path, depth=False)
+    with pytest.raises(ScannerError, match="--scale: the plain form states its unit"):
+        read_recording(folder, metres_per_unit=0.001)
+    project, _ = colmap_project(tmp_path, binary=False)
+    known = KnownDistance(COLMAP_NAMES[0], "nope.png", 1.0)
+    with pytest.raises(ScannerError, match="--known-distance: no image named 'nope.png'"):
+        read_recording(project, known_distance=known)
+    with pytest.raises(ScannerError, match="give one of them, not both"):
+        read_recording(project, metres_per_unit=1.0, known_distance=known)
+    (project / "recording.yaml").write_text("unit_m: 1\n")
+    with pytest.raises(ScannerError, match="holds the files of colmap and plain; choose one"):
+        read_recording(project)
+    out = tmp_path / "scan"
+    for distance in ("0", "-1", "nan", "ten"):
+        r = scanner(capfd, "import-recording", project, "--out", out, "--format", "colmap",
+                    "--known-distance", COLMAP_NAMES[0], COLMAP_NAMES[1], distance)  # fmt: skip
+        assert r.returncode == 2 and "--known-distance: expected a distance in metres" in r.stderr
+        assert not out.exists()
+
+
+def test_commands_for_scans_of_the_cell_refuse_an_imported_recording(tmp_path, capfd):
+    folder, _, _ = plain_recording(tmp_path, depth=False)
+    out = tmp_path / "scan"
+    assert scanner(capfd, "import-recording", folder, "--out", out).returncode == 0
+    for command in (["reconstruct", out], ["scan", "--resume", out]):
+        r = scanner(capfd, *command)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert "is an imported recording (plain, sensor mono)" in r.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["captures", "scan.yaml"]

@@ -192,6 +192,16 @@ def _hangings(manifest: dict, views: list[PlannedView], where: str) -> tuple[tup
     return out
 
 
+def require_robot_scan(scan: SavedScan, what: str) -> None:
+    """Refuse an imported recording where `what` (a command) needs a scan of this product's own
+    cell: a device model, viewpoints and joints."""
+    if scan.recording is not None:
+        raise ScannerError(
+            f"{scan.root}: is an imported recording ({scan.recording.format}, sensor mono); "
+            f"{what} takes scans made by scanner scan"
+        )
+
+
 def _open_recording(store: CaptureStore, manifest: dict, where: str) -> SavedScan:
     info = recording_info_from_dict(manifest["recording"], where)
     if manifest.get("sensor") != "mono":
@@ -199,9 +209,10 @@ def _open_recording(store: CaptureStore, manifest: dict, where: str) -> SavedSca
     object_name = manifest.get("object")
     if not isinstance(object_name, str) or not object_name:
         raise ScannerError(f"{where}: object: expected the recording's name")
-    config = scan_config_from_dict(
-        {"object": object_name, **manifest.get("config", {})}, f"{where}:config"
-    )
+    given = manifest.get("config", {})
+    if not isinstance(given, dict):
+        raise ScannerError(f"{where}: config: expected a mapping of scan settings")
+    config = scan_config_from_dict({"object": object_name, **given}, f"{where}:config")
     return SavedScan(
         store,
         manifest,
