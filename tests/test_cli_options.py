@@ -61,7 +61,24 @@ def places(tmp_path_factory):
     o3d.io.write_triangle_mesh(str(root / "model.ply"), o3d.geometry.TriangleMesh.create_box())
     tf = exchange.static_transform(np.eye(4))
     (root / "he.yaml").write_text(exchange.static_transform_text(tf))
+    _idr_recording(root / "idr")
     return root
+
+
+def _idr_recording(folder) -> None:
+    """A valid IDR recording: two 32x24 views 100 mm apart (the format's default unit), 1 m
+    from the origin (the scale_mat centre), looking along +z."""
+    (folder / "images").mkdir(parents=True)
+    K = np.array([[30.0, 0, 15.5], [0, 30.0, 11.5], [0, 0, 1]])
+    cameras = {}
+    for i in range(2):
+        cv2.imwrite(str(folder / "images" / f"{i}.png"), np.full((24, 32, 3), 90, np.uint8))
+        p_WC = np.array([100.0 * i, 0.0, -1000.0])
+        cameras[f"world_mat_{i}"] = np.vstack(
+            [K @ np.column_stack([np.eye(3), -p_WC]), [0, 0, 0, 1]]
+        )
+        cameras[f"scale_mat_{i}"] = np.eye(4)
+    np.savez(folder / "cameras_sphere.npz", **cameras)
 
 
 PATHS = [
@@ -121,6 +138,7 @@ EXPORT_TF = [*EXPORT, "--format", "ros-tf", "--out", "{root}/exported"]
 IMPORT = ["import-calibration", "--format", "opencv", "{root}/opencv"]
 IMPORT_TO = [*IMPORT, "--out", "{root}/imported.yaml"]
 INSPECT = ["inspect", "{root}/model.ply", "--reference", "{root}/model.ply"]
+RECORDING = ["import-recording", "{root}/idr", "--out", "{root}/rec"]
 IMPORT_ROS_TO = ["import-calibration", "--format", "ros", "{root}/ros", "--out", "{root}/i.yaml"]
 
 # (command and the context it needs, option, bad values). Every option of every subcommand is
@@ -257,6 +275,16 @@ CASES = [
     (IMPORT_TO, "--length-unit", BAD_LENGTH_UNITS),
     (IMPORT_TO, "--length-unit", st.just("mm")),
     (IMPORT_ROS_TO, "--length-unit", st.just("m")),
+    (["import-recording", "--out", "{root}/rec"], "", _paths(PATHS)),
+    (
+        ["import-recording", "{root}/idr"],
+        "--out",
+        _paths([*OUT_PATHS, "{root}/scan", "{root}/idr"]),
+    ),
+    (RECORDING, "--format", _names(["idr", "colmap", "plain"])),
+    (RECORDING, "--scale", _floats(None)),
+    (RECORDING, "--known-distance", _names([])),
+    (RECORDING, "--masks", _paths(PATHS)),
 ]
 
 
@@ -268,6 +296,7 @@ def no_work(monkeypatch):
     import scanner.calibrate.offline
     import scanner.inspect.inspection
     import scanner.reconstruct.scan_views
+    import scanner.recordings.scan_writer
     import scanner.scan.preview
 
     monkeypatch.setattr(planners.planner.Planner, "__init__", _tripwire)
@@ -276,6 +305,7 @@ def no_work(monkeypatch):
     monkeypatch.setattr(scanner.calibrate.offline, "solve", _tripwire)
     monkeypatch.setattr(scanner.calibrate.eye_to_hand, "grid_points", _tripwire)
     monkeypatch.setattr(scanner.scan.preview, "first_reachable_view", _tripwire)
+    monkeypatch.setattr(scanner.recordings.scan_writer, "write_recording_scan", _tripwire)
     # Export and import: nothing is written.
     for name in ("write_opencv_stereo", "write_ros_camera_info", "write_static_transform"):
         monkeypatch.setattr(exchange, name, _tripwire)
@@ -370,6 +400,7 @@ def test_unreadable_config_is_a_one_line_error(tmp_path, capsys):
         [*IMPORT, "--out", "{root}/imported.yaml", "--hand-eye", "{root}/he.yaml"],
         [*IMPORT, "--out", "{root}/imported.yaml", "--image-size", "1280x960"],
         ["import-calibration", "--format", "ros", "{root}/ros", "--out", "{root}/imported.yaml"],
+        RECORDING,
     ],
 )
 def test_valid_values_reach_the_tripwire(argv, places, no_work):

@@ -114,7 +114,7 @@ SCANNER_LAYERS = (
     ("commands",),
     ("calibrate", "check_cell", "plan_only"),
     ("scan",),
-    ("reconstruct", "inspect"),
+    ("reconstruct", "inspect", "recordings"),
     ("scan_dir",),
     ("configs",),
     ("monitor",),

@@ -116,7 +116,7 @@ def test_an_rgbd_capture_is_stored_losslessly(tmp_path):
         (lambda m: m.pop("depth_scale_m"), "depth_scale_m: expected the depth unit in metres"),
         (lambda m: m.update(depth_scale_m=0), "depth_scale_m: expected a positive number"),
         (lambda m: m.update(depth_size=[10, 10]), "depth image is 848x480, expected 10x10"),
-        (lambda m: m.update(sensor="lidar"), "sensor: expected 'stereo' or 'rgbd'"),
+        (lambda m: m.update(sensor="lidar"), "sensor: expected 'stereo', 'rgbd' or 'mono'"),
     ],
 )
 def test_a_damaged_rgbd_capture_is_one_line(tmp_path, change, expected):

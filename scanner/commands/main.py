@@ -13,6 +13,7 @@ from scanner.commands.arguments import ScannerArgumentParser
 from scanner.commands.calibrate_arguments import add_calibrate_parser
 from scanner.commands.cell import add_check_cell_parser, add_emulate_parser
 from scanner.commands.exchange import add_export_parser, add_import_parser
+from scanner.commands.import_recording import add_import_recording_parser
 from scanner.commands.inspect import add_inspect_parser
 from scanner.commands.monitor import add_monitor_parser
 from scanner.commands.reconstruct import add_merge_parser, add_reconstruct_parser
@@ -39,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_preview_parser(sub)
     add_export_parser(sub)
     add_import_parser(sub)
+    add_import_recording_parser(sub)
     add_inspect_parser(sub)
     add_view_parser(sub)
     add_monitor_parser(sub)

@@ -38,10 +38,13 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
         load_processing_config,
         run_reconstruct,
     )
-    from scanner.scan_dir.manifest import open_scan
+    from scanner.scan_dir.manifest import open_scan, require_robot_scan
     from scanner.scan_dir.results_folder import require_replaceable
 
     scan = open_scan(scan_dir)
+    # Imported recordings (one camera, its pose per view) are reconstructed by their own
+    # pipeline, which this command does not run yet.
+    require_robot_scan(scan, "scanner reconstruct")
     if options.config is not None:
         processing = load_processing_config(options.config)
     else:

@@ -13,7 +13,7 @@ from scanner.reconstruct.stages import (
     load_processing_config,
     run_reconstruct,
 )
-from scanner.scan_dir.manifest import open_scan
+from scanner.scan_dir.manifest import open_scan, require_robot_scan
 from scanner.scan_dir.results_folder import require_replaceable
 
 
@@ -36,6 +36,8 @@ def run_merge(
     if twice:
         raise ScannerError(f"{', '.join(twice)}: given more than once; merge distinct scans")
     scans = [open_scan(d) for d in scan_dirs]
+    for scan in scans:
+        require_robot_scan(scan, "scanner merge")
     first = camera_model_to_dict(scans[0].camera_model)
     for scan in scans[1:]:
         if camera_model_to_dict(scan.camera_model) != first:

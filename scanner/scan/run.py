@@ -31,7 +31,7 @@ from scanner.scan.session import interruptible, log_file, meshcat_if
 from scanner.scan.viewpoints import ViewPlan, generate_viewpoints
 from scanner.scan.world import ScanWorld, setup_world
 from scanner.scan_dir.captures import CaptureStore, atomic_write_text, require_same_settings
-from scanner.scan_dir.manifest import SavedScan, new_manifest, open_scan
+from scanner.scan_dir.manifest import SavedScan, new_manifest, open_scan, require_robot_scan
 from scanner.scan_dir.views import PlannedView
 
 log = logging.getLogger("scanner.scan.run")
@@ -69,6 +69,7 @@ def _open_resumed(resume: Path, requested: ScanConfig | None) -> SavedScan:
     its partial capture (if the scan was killed mid-write) removed; a scan with a hanging left
     out of its model, reopened to scan that hanging again (`reopen_left_out`)."""
     saved = open_scan(resume)
+    require_robot_scan(saved, "--resume")
     # A hanging that did not align was left out of the model: resuming scans it again.
     left_out = bool(saved.manifest.get("left_out_hangings"))
     if saved.manifest.get("status") == "complete" and not left_out:

@@ -6,6 +6,8 @@
       truth.yaml           simulator truth (evaluation only; absent on real hardware)
       truth_mesh.ply       the true object surface in W (evaluation only)
       captures/0007/       one capture: left.png, right.png (lossless), capture.yaml
+                           (RGB-D: color.png, depth.png; an imported recording, sensor mono:
+                           image.png, optional mask.png and depth.png, the camera and X_WC)
       results/             derived products (never inputs)
 
 A capture exists only once its folder has been renamed from `captures/.tmp-0007` to
@@ -27,6 +29,7 @@ import numpy as np
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.yaml_files import read_yaml, yaml_text
+from reconstruction.stereo.camera_model import CameraModelError, PinholeCamera
 from scanner.scan_dir.results_folder import storage_error
 
 SCAN_SCHEMA = "scanner.scan/1"
@@ -42,7 +45,11 @@ STATUS_RANK = {"running": 0, "interrupted": 0, "captured": 1, "complete": 2}
 class Capture:
     """One capture and the robot state it was taken at (what `reconstruct` reads): a stereo
     pair (left, right), or an RGB-D capture (left: the colour image, right None, depth: uint16
-    counts of depth_scale_m metres on the depth camera's grid)."""
+    counts of depth_scale_m metres on the depth camera's grid), or a view of an imported
+    recording (sensor mono: left the image, right None, its own `camera` and pose `X_WC`, an
+    optional `mask`, uint8 0/255, 255 on the object, and an optional depth on the image's grid;
+    q_rad is empty, no joints were recorded, and X_WF is the flange pose, or X_WC when the
+    recording gave camera poses)."""
 
     pose_index: int
     pose_count: int
@@ -53,14 +60,23 @@ class Capture:
     right: np.ndarray | None
     depth: np.ndarray | None = None
     depth_scale_m: float = 0.0
+    mask: np.ndarray | None = None
+    camera: PinholeCamera | None = None
+    X_WC: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        for a in (self.q_rad, self.X_WF, self.left, self.right, self.depth):
+        if (self.camera is None) != (self.X_WC is None):
+            raise AssertionError("a mono capture has its camera and X_WC; others have neither")
+        if self.camera is not None and self.right is not None:
+            raise AssertionError("a mono capture has one image")
+        for a in (self.q_rad, self.X_WF, self.left, self.right, self.depth, self.mask, self.X_WC):
             if a is not None:
                 a.setflags(write=False)
 
     @property
     def sensor(self) -> str:
+        if self.camera is not None:
+            return "mono"
         return "stereo" if self.depth is None else "rgbd"
 
     @staticmethod
@@ -222,7 +238,12 @@ class CaptureStore:
 
     @staticmethod
     def _write_capture_files(tmp: Path, capture: Capture) -> None:
-        if capture.sensor == "rgbd":
+        if capture.sensor == "mono":
+            files = {"image": ("image.png", capture.left)}
+            for key, image in (("mask", capture.mask), ("depth", capture.depth)):
+                if image is not None:
+                    files[key] = (f"{key}.png", image)
+        elif capture.sensor == "rgbd":
             files = {"color": ("color.png", capture.left), "depth": ("depth.png", capture.depth)}
         else:
             files = {"left": ("left.png", capture.left), "right": ("right.png", capture.right)}
@@ -244,9 +265,12 @@ class CaptureStore:
             **{key: name for key, (name, _) in files.items()},
             "image_size": [int(capture.left.shape[1]), int(capture.left.shape[0])],
         }
-        if capture.sensor == "rgbd":
+        if capture.depth is not None:
             meta["depth_size"] = [int(capture.depth.shape[1]), int(capture.depth.shape[0])]
             meta["depth_scale_m"] = float(capture.depth_scale_m)
+        if capture.sensor == "mono":
+            meta["camera"] = mono_camera_to_dict(capture.camera)
+            meta["X_WC"] = capture.X_WC.tolist()
         atomic_write_yaml(tmp / "capture.yaml", meta)
 
     def capture_stamp_s(self, index: int) -> float:
@@ -262,8 +286,10 @@ class CaptureStore:
         """One capture, validated; a damaged capture raises ScannerError naming the problem."""
         d = self.root / CAPTURES / _folder(index)
         meta = _read_yaml(d / "capture.yaml", "capture metadata")
+        sensor = meta.get("sensor", "stereo")
         try:
-            q = np.array(meta["q_rad"], dtype=float)
+            # A recording's view has no joints (q_rad empty or absent).
+            q = np.array(meta["q_rad"] if sensor != "mono" else meta.get("q_rad", []), float)
             X_WF = np.array(meta["X_WF"], dtype=float)
             width, height = meta["image_size"]
             stamp = float(meta["stamp_s"])
@@ -273,26 +299,80 @@ class CaptureStore:
         except (KeyError, TypeError, ValueError) as e:
             raise ScannerError(f"{d / 'capture.yaml'}: missing or malformed field ({e})") from None
         # One value per joint of the scan's arm (the manifest's robot and config name it).
-        if q.ndim != 1 or not q.size or not np.all(np.isfinite(q)):
+        if q.ndim != 1 or not (q.size or sensor == "mono") or not np.all(np.isfinite(q)):
             raise ScannerError(
                 f"{d / 'capture.yaml'}: q_rad must be a list of finite joint positions"
             )
         if X_WF.shape != (4, 4) or not np.all(np.isfinite(X_WF)):
             raise ScannerError(f"{d / 'capture.yaml'}: X_WF must be a finite 4x4 matrix")
-        sensor = meta.get("sensor", "stereo")
+        if sensor == "mono":
+            return _read_mono(d, meta, index, count, q, X_WF, stamp, width, height)
         if sensor == "rgbd":
             color = _read_rgb(d / str(meta.get("color", "color.png")), width, height)
             depth, scale = read_depth(d, meta)
             return Capture(index, count, q, X_WF, stamp, color, None, depth, scale)
         if sensor != "stereo":
             raise ScannerError(
-                f"{d / 'capture.yaml'}: sensor: expected 'stereo' or 'rgbd', got {sensor!r}"
+                f"{d / 'capture.yaml'}: sensor: expected 'stereo', 'rgbd' or 'mono', got {sensor!r}"
             )
         images = [
             _read_rgb(d / str(meta.get(name, f"{name}.png")), width, height)
             for name in ("left", "right")
         ]
         return Capture(index, count, q, X_WF, stamp, images[0], images[1])
+
+
+def mono_camera_to_dict(camera: PinholeCamera) -> dict:
+    return {
+        "K": camera.K.tolist(),
+        "distortion": camera.distortion.tolist(),
+        "width": camera.width,
+        "height": camera.height,
+    }
+
+
+def mono_camera_from_dict(d, where: str) -> PinholeCamera:
+    if not isinstance(d, dict) or any(k not in d for k in ("K", "distortion", "width", "height")):
+        raise ScannerError(f"{where}: camera: expected K, distortion, width and height")
+    w, h = d["width"], d["height"]
+    if not (isinstance(w, int) and isinstance(h, int)) or isinstance(w, bool):
+        raise ScannerError(f"{where}: camera: width and height must be whole pixels")
+    try:
+        return PinholeCamera(d["K"], d["distortion"], w, h)
+    except CameraModelError as e:
+        raise ScannerError(f"{where}: camera: {e}") from None
+
+
+def _read_mono(
+    d: Path, meta: dict, index: int, count: int, q, X_WF, stamp: float, width: int, height: int
+) -> Capture:
+    """A view of an imported recording: its image, camera and X_WC, an optional mask and
+    depth, each checked against the image size."""
+    where = d / "capture.yaml"
+    camera = mono_camera_from_dict(meta.get("camera"), str(where))
+    if (camera.width, camera.height) != (width, height):
+        raise ScannerError(
+            f"{where}: camera is {camera.width}x{camera.height}, image_size {width}x{height}"
+        )
+    try:
+        X_WC = np.array(meta["X_WC"], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        raise ScannerError(f"{where}: X_WC: expected a finite 4x4 matrix") from None
+    if X_WC.shape != (4, 4) or not np.all(np.isfinite(X_WC)):
+        raise ScannerError(f"{where}: X_WC: expected a finite 4x4 matrix")
+    image = _read_rgb(d / str(meta.get("image", "image.png")), width, height)
+    mask = None
+    if "mask" in meta:
+        path = d / str(meta["mask"])
+        mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if mask is None:
+            raise ScannerError(f"{path}: missing or unreadable mask")
+        if mask.shape != (height, width):
+            raise ScannerError(
+                f"{path}: mask is {mask.shape[1]}x{mask.shape[0]}, expected {width}x{height}"
+            )
+    depth, scale = (None, 0.0) if "depth" not in meta else read_depth(d, meta)
+    return Capture(index, count, q, X_WF, stamp, image, None, depth, scale, mask, camera, X_WC)
 
 
 def _read_rgb(path: Path, width: int, height: int) -> np.ndarray:

@@ -2,7 +2,9 @@
 
 It holds the object, the whole configuration, the nominal camera model and X_FC the software
 used, the robot model, the viewpoints with their IK options, and the status; `CaptureStore`
-writes it atomically.
+writes it atomically. A scan directory imported from another system's recording
+(`scanner import-recording`) holds instead its `recording:` (format, source, scale, counts),
+`sensor: mono` and X_FC; each of its captures carries its own camera and pose.
 """
 
 from __future__ import annotations
@@ -98,15 +100,56 @@ def new_manifest(
     }
 
 
+RECORDING_KEYS = ("format", "source", "metres_per_unit", "camera_poses_given", "masks", "views")
+
+
+@dataclass(frozen=True)
+class RecordingInfo:
+    """What an imported recording's manifest says of it (`recording:` in scan.yaml): the
+    reader's format, the absolute source path, the metres per source unit applied, whether
+    the source gave camera poses (else flange poses and X_FC), whether masks came with it, and
+    the number of views (captures 0 .. views-1)."""
+
+    format: str
+    source: str
+    metres_per_unit: float
+    camera_poses_given: bool
+    masks: bool
+    views: int
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k) for k in RECORDING_KEYS}
+
+
+def recording_info_from_dict(d, where: str) -> RecordingInfo:
+    if not isinstance(d, dict) or any(k not in d for k in RECORDING_KEYS):
+        raise ScannerError(f"{where}: recording: expected the keys {', '.join(RECORDING_KEYS)}")
+    views, unit = d["views"], d["metres_per_unit"]
+    if isinstance(views, bool) or not isinstance(views, int) or views < 1:
+        raise ScannerError(f"{where}: recording.views: expected a positive count, got {views!r}")
+    if isinstance(unit, bool) or not isinstance(unit, int | float) or not unit > 0:
+        raise ScannerError(
+            f"{where}: recording.metres_per_unit: expected a positive number, got {unit!r}"
+        )
+    flags = {k: d[k] for k in ("camera_poses_given", "masks")}
+    if not all(isinstance(v, bool) for v in flags.values()):
+        raise ScannerError(f"{where}: recording: camera_poses_given and masks must be true/false")
+    return RecordingInfo(str(d["format"]), str(d["source"]), float(unit), **flags, views=views)
+
+
 @dataclass(frozen=True, eq=False)
 class SavedScan:
     """A scan directory read back: its store, the manifest, and what the manifest says, parsed
-    and validated once (configuration, camera model, nominal X_FC, viewpoints)."""
+    and validated once (configuration, camera model, nominal X_FC, viewpoints).
+
+    An imported recording (`recording` set) planned no viewpoints (`views` empty), has no
+    device model (`camera_model` None: each capture holds its camera and X_WC), one pass over
+    all its captures, and the default configuration unless its manifest holds a `config:`."""
 
     store: CaptureStore
     manifest: dict
     config: ScanConfig
-    camera_model: CameraModel  # the stereo pair's or the RGB-D device's
+    camera_model: CameraModel | None  # the stereo pair's or the RGB-D device's; None: recording
     X_FC_nominal: np.ndarray
     views: tuple[PlannedView, ...]
     hangings: tuple[tuple[int, ...], ...]  # the view indices of each pass
@@ -114,6 +157,12 @@ class SavedScan:
     # X_WF(q) to use instead of the flange poses stored with the captures (a reconstruction
     # with a calibration that corrects the robot's own errors); None: the stored ones.
     flange_pose: Callable[[np.ndarray], np.ndarray] | None = None
+    recording: RecordingInfo | None = None
+
+    @property
+    def sensor(self) -> str:
+        """stereo or rgbd (the configuration's), or mono for an imported recording."""
+        return "mono" if self.recording is not None else self.config.sensor
 
     def X_WF(self, capture) -> np.ndarray:
         """The flange pose of a capture this scan's reconstruction uses."""
@@ -143,11 +192,47 @@ def _hangings(manifest: dict, views: list[PlannedView], where: str) -> tuple[tup
     return out
 
 
+def require_robot_scan(scan: SavedScan, what: str) -> None:
+    """Refuse an imported recording where `what` (a command) needs a scan of this product's own
+    cell: a device model, viewpoints and joints."""
+    if scan.recording is not None:
+        raise ScannerError(
+            f"{scan.root}: is an imported recording ({scan.recording.format}, sensor mono); "
+            f"{what} takes scans made by scanner scan"
+        )
+
+
+def _open_recording(store: CaptureStore, manifest: dict, where: str) -> SavedScan:
+    info = recording_info_from_dict(manifest["recording"], where)
+    if manifest.get("sensor") != "mono":
+        raise ScannerError(f"{where}: sensor: expected 'mono' for a recording")
+    object_name = manifest.get("object")
+    if not isinstance(object_name, str) or not object_name:
+        raise ScannerError(f"{where}: object: expected the recording's name")
+    given = manifest.get("config", {})
+    if not isinstance(given, dict):
+        raise ScannerError(f"{where}: config: expected a mapping of scan settings")
+    config = scan_config_from_dict({"object": object_name, **given}, f"{where}:config")
+    return SavedScan(
+        store,
+        manifest,
+        config,
+        None,
+        check_pose(manifest.get("X_FC"), f"{where}:X_FC"),
+        (),
+        (tuple(range(info.views)),),
+        0,
+        recording=info,
+    )
+
+
 def open_scan(scan_dir: Path) -> SavedScan:
     """The scan in `scan_dir`; ScannerError naming the file and field when it is not one."""
     store = CaptureStore.open(scan_dir)
     manifest = store.read_manifest()
     where = str(store.manifest_path)
+    if "recording" in manifest:
+        return _open_recording(store, manifest, where)
     missing = [k for k in ("config", "camera", "X_FC_nominal", "viewpoints") if k not in manifest]
     if missing:
         raise ScannerError(f"{where}: not a scan manifest (missing {', '.join(missing)})")

@@ -52,6 +52,8 @@ class OutputKind:
     holds: Callable[[Path], bool]
     is_file: bool = False
     whole: bool = True
+    # False: written only into a new or empty folder, --force or not (an imported recording).
+    force_replaces: bool = True
 
 
 def _manifest_kind(folder: Path) -> str | None:
@@ -109,6 +111,7 @@ CALIBRATION = OutputKind("a calibration", _is_calibration)
 PREVIEW = OutputKind("a preview", _only(PREVIEW_FILES))
 EXPORT = OutputKind("an export", _only(EXPORT_FILES), whole=False)
 CALIBRATION_FILE_OUT = OutputKind("a calibration file", _is_calibration_file, is_file=True)
+IMPORTED_SCAN = OutputKind("an imported recording", _is_scan, force_replaces=False)
 
 _BY_COMMAND = {
     "calibrate": CALIBRATION,
@@ -118,6 +121,7 @@ _BY_COMMAND = {
     "preview": PREVIEW,
     "export": EXPORT,
     "import-calibration": CALIBRATION_FILE_OUT,
+    "import-recording": IMPORTED_SCAN,
 }
 
 
@@ -188,8 +192,13 @@ def replaceable(path: Path, kind: OutputKind, force: bool, flag: str = "--out") 
     entries = sorted(p.name for p in path.iterdir())
     if not entries:
         return
+    shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
+    if not kind.force_replaces:
+        raise ScannerError(
+            f"{flag} {path}: is not empty (it holds {shown}); {kind.what} is written only into "
+            "a new or empty folder"
+        )
     if not kind.holds(path):
-        shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
         raise ScannerError(
             f"{flag} {path}: exists and is not {kind.what} (it holds {shown}); choose a new "
             f"or empty folder (--force replaces only {kind.what})"
