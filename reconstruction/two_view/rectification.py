@@ -27,9 +27,8 @@ can be matched, with black corners that the matcher's texture filter rejects.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -147,16 +146,9 @@ def _footprint(camera: PinholeCamera, R_rect: np.ndarray, focal_px: float) -> np
     return np.concatenate([uv[:, 0].min(axis=0), uv[:, 0].max(axis=0)])
 
 
-def pair_rectification(rig: PairRig, max_growth: float = 3.0) -> Rectification:
-    """The rectification of a view pair at the source's resolution (see the module docstring).
-
-    The rectified focal length is the mean of the two source focal lengths. The rectified grid
-    covers every column of the reference (left) image that can have a match (right of where the
-    other image begins: disparities are never negative) and the rows both images share. The
-    record is the product's `Rectification`, whose `image_size` is that of the rectified grid
-    (not the source's); `rectify_views` resamples the images onto it. A grid more than
-    max_growth times the source's width or height means views that hardly overlap: refused.
-    """
+def rectifying_rotations(rig: PairRig) -> tuple[np.ndarray, np.ndarray, float]:
+    """(R1, R2, baseline_m) of the pair's rectification (stereoRectify's rotations from the
+    turned frames V and O' to the rectified ones, which do not depend on the rectified grid)."""
     model = rig.stereo
     L, R = model.left, model.right
     R1, R2, _, P2, _, _, _ = cv2.stereoRectify(
@@ -170,9 +162,38 @@ def pair_rectification(rig: PairRig, max_growth: float = 3.0) -> Rectification:
         flags=cv2.CALIB_ZERO_DISPARITY,
         alpha=1.0,
     )
+    return R1, R2, float(-P2[0, 3] / P2[0, 0])
+
+
+# Beyond f b / z_min, the SGBM search reaches up to this many more pixels: the 2 px margin of
+# `disparity_window` and its rounding up to a multiple of 16.
+_SEARCH_MARGIN_PX = 18
+
+
+def pair_rectification(rig: PairRig, z_min_m: float, max_growth: float = 3.0) -> Rectification:
+    """The rectification of a view pair at the source's resolution (see the module docstring),
+    for matching depths from z_min_m (rectified frame) on.
+
+    The rectified focal length is the mean of the two source focal lengths. SGBM leaves the
+    first min_disparity + num_disparities columns of the left image without a match (their
+    search would leave the right image), and two views aimed at one centre with zero disparity
+    at infinity see the working volume at large disparities (about 140 px on 4x downscaled DTU
+    pairs, half the image width at full resolution). So the grid starts that far left of the
+    reference image, over the other image's part there, and ends with the reference image; it
+    holds the rows both images share. The record is the product's `Rectification`, whose
+    `image_size` is that of the rectified grid (not the source's); `rectify_views` resamples the
+    images onto it. A grid more than max_growth times the source's width or height means views
+    that hardly overlap: refused.
+    """
+    if not z_min_m > 0:
+        raise ScannerError(f"view pair: the nearest depth must be positive, got {z_min_m} m")
+    model = rig.stereo
+    L, R = model.left, model.right
+    R1, R2, baseline_m = rectifying_rotations(rig)
     f = float(np.mean([L.K[0, 0], L.K[1, 1], R.K[0, 0], R.K[1, 1]]))
     left, right = _footprint(L, R1, f), _footprint(R, R2, f)
-    u0, v0 = max(left[0], right[0]), max(left[1], right[1])
+    u0 = left[0] - (math.ceil(f * baseline_m / z_min_m) + _SEARCH_MARGIN_PX)
+    v0 = max(left[1], right[1])
     u1, v1 = left[2], min(left[3], right[3])
     width, height = int(math.ceil(u1 - u0)) + 1, int(math.ceil(v1 - v0)) + 1
     limit_w, limit_h = max_growth * L.width, max_growth * L.height
@@ -182,8 +203,9 @@ def pair_rectification(rig: PairRig, max_growth: float = 3.0) -> Rectification:
             f"{L.width}x{L.height} px images; they overlap too little to be a stereo pair"
         )
     cx, cy = -math.floor(u0), -math.floor(v0)
-    # Rectified cameras with CALIB_ZERO_DISPARITY: one principal point, baseline Tx along x.
-    Tx = P2[0, 3] / P2[0, 0]
+    # Rectified cameras with CALIB_ZERO_DISPARITY: one principal point, the right camera at
+    # -Tx = baseline along x.
+    Tx = -baseline_m
     P1 = np.array([[f, 0, cx, 0], [0, f, cy, 0], [0, 0, 1, 0]], float)
     P2 = P1.copy()
     P2[0, 3] = f * Tx
