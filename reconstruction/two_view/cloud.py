@@ -20,7 +20,7 @@ from reconstruction.common.checks import check_fields, positive
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import check_pose, invert, transform_points
 from reconstruction.registration.views import DepthImage
-from reconstruction.stereo.camera_model import PinholeCamera
+from reconstruction.stereo.camera_model import PinholeCamera, project_points
 from reconstruction.stereo.cloud import StereoCloud, depth_image, reproject, sample_image
 from reconstruction.stereo.matching import disparity_image, grey_image
 from reconstruction.stereo.params import StereoParams, disparity_window, object_depth_window
@@ -33,6 +33,7 @@ from reconstruction.two_view.epipolar import (
     match_features,
 )
 from reconstruction.two_view.rectification import (
+    PairRig,
     pair_rectification,
     pair_rig,
     rectify_views,
@@ -109,6 +110,26 @@ def _masked(cloud: StereoCloud, keep: np.ndarray) -> StereoCloud:
     )
 
 
+def _inside(camera: PinholeCamera, pixels: np.ndarray) -> np.ndarray:
+    """Pixels (N, 2) whose bilinear sample lies wholly within the image."""
+    return (
+        (pixels[:, 0] >= 0)
+        & (pixels[:, 1] >= 0)
+        & (pixels[:, 0] <= camera.width - 1)
+        & (pixels[:, 1] <= camera.height - 1)
+    )
+
+
+def _seen_by_both(rig: PairRig, cloud_V: StereoCloud) -> np.ndarray:
+    """(N,) bool: the point's pixel lies inside the (turned) reference image and its projection
+    inside the (turned) other image."""
+    stereo = rig.stereo
+    p_R = cloud_V.points_C @ stereo.R.T + stereo.T
+    return _inside(stereo.left, cloud_V.pixels_left) & _inside(
+        stereo.right, project_points(stereo.right, p_R)
+    )
+
+
 def pair_cloud(
     image_i: np.ndarray,
     image_j: np.ndarray,
@@ -170,6 +191,10 @@ def pair_cloud(
     disparity = disparity_image(grey_left, grey_right, min_disparity, num_disparities, params)
     cloud_V = reproject(rect, disparity, left, z_min_m, z_max_m, params.subsample_step_px)
 
+    # SGBM carries disparities into the black corners of the rectified grid (no source pixel
+    # there), which the low-texture filter keeps when they continue the image's: only points
+    # that both images saw stay.
+    cloud_V = _masked(cloud_V, _seen_by_both(rig, cloud_V))
     if mask_i is not None:
         mask = rotate_image(downscaled_mask(mask_i, factor), k).astype(np.uint8)
         inside = sample_image(mask, cloud_V.pixels_left, cv2.INTER_NEAREST) > 0
