@@ -231,6 +231,53 @@ def test_plane_depths_for_every_baseline_direction(p_W_other, quarter_turns):
     assert np.median(np.abs(signed_depth_m)) < 0.8e-3
 
 
+def _render_distorted(camera: PinholeCamera, X_WC: np.ndarray, texture: np.ndarray):
+    """The plane through a distorted lens: each distorted pixel samples the ideal image at
+    its undistorted position (the ideal image rendered with a margin for barrel distortion)."""
+    pad = 60
+    K_ideal = camera.K + np.array([[0, 0, pad], [0, 0, pad], [0, 0, 0]])
+    ideal = PinholeCamera(K_ideal, np.zeros(5), camera.width + 2 * pad, camera.height + 2 * pad)
+    sharp = _render_plane(ideal, X_WC, texture)
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    undistorted = cv2.undistortPointsIter(
+        np.stack([u, v], -1).reshape(-1, 1, 2), camera.K, camera.distortion, None, K_ideal, criteria
+    ).reshape(camera.height, camera.width, 2)
+    return cv2.remap(sharp, undistorted.astype(np.float32), None, cv2.INTER_LINEAR)
+
+
+def test_distorted_vertical_pair():
+    """A lens with radial and tangential distortion, the other view below the reference: the
+    distortion turns with the images (`rotate_camera`) and the points still lie on the plane."""
+    K = np.array([[480.0, 0, 161.0], [0, 478.0, 118.0], [0, 0, 1]])
+    # The product's lens (k1 -0.42, k2 0.19, SDU report) with some tangential distortion.
+    camera = PinholeCamera(K, np.array([-0.42, 0.19, 0.002, -0.003, 0.0]), 320, 240)
+    texture = _texture(512, 6)
+    centre = X_WP[:3, 3]
+    eye = np.array([0.0, 0.06, 0.0])
+    X_WCj = make_pose(rotation_between([0, 0, 1], centre - eye), eye)
+    cloud = pair_cloud(
+        _render_distorted(camera, np.eye(4), texture),
+        _render_distorted(camera, X_WCj, texture),
+        camera,
+        camera,
+        np.eye(4),
+        X_WCj,
+        centre,
+        0.1,
+        StereoParams(),
+        config=TwoViewConfig(refine_pose=False),
+    )
+    assert cloud.quarter_turns == 1
+    assert len(cloud) > 0.5 * camera.width * camera.height
+    signed_m = (cloud.points_C - centre) @ X_WP[:3, 2]
+    # As without distortion: measured median |error| 0.56 mm, p95 1.7 mm; with the distortion
+    # ignored (images distorted, camera ideal) 0.68 mm and 3.3 mm, the median -0.18 mm.
+    assert abs(np.median(signed_m)) < 0.15e-3
+    assert np.median(np.abs(signed_m)) < 0.8e-3
+    assert np.percentile(np.abs(signed_m), 95) < 2.5e-3
+
+
 # --- DTU scan 24 --------------------------------------------------------------------------------
 
 
