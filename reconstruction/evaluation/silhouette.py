@@ -40,7 +40,7 @@ from scipy.spatial import cKDTree
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.kdtree import query_workers
-from reconstruction.common.transforms import invert, transform_points
+from reconstruction.common.transforms import invert
 
 
 class MaskedView(NamedTuple):
@@ -176,11 +176,20 @@ def silhouette_agreement(
     return _agreement(silhouettes, [v.mask for v in checked])
 
 
-def median_spacing_m(points_W: np.ndarray) -> float:
-    """The median distance from a point to its nearest neighbour (m): the cloud's spacing."""
+SPACING_SAMPLES = 50_000
+
+
+def median_spacing_m(points_W: np.ndarray, seed: int = 0) -> float:
+    """The median distance from a point to its nearest neighbour (m): the cloud's spacing.
+    Measured on a random 50,000 of the points (against all of them): the median of that many
+    is within a per cent of all points' median, at a fraction of the time for millions."""
     points_W = np.asarray(points_W, float)
+    query = points_W
+    if len(points_W) > SPACING_SAMPLES:
+        rng = np.random.default_rng(seed)
+        query = points_W[rng.choice(len(points_W), SPACING_SAMPLES, replace=False)]
     tree = cKDTree(points_W)
-    d, _ = tree.query(points_W, k=2, workers=query_workers(len(points_W)))
+    d, _ = tree.query(query, k=2, workers=query_workers(len(query)))
     return float(np.median(d[:, 1]))
 
 
@@ -195,6 +204,12 @@ def _splat(image: np.ndarray, uv: np.ndarray, radius_px: float) -> None:
     height, width = image.shape
     base = np.floor(uv).astype(np.int64)
     frac = uv - base
+    if radius_px < 0.5:
+        # No pixel centre but the nearest can lie within less than half a pixel.
+        u, v = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+        keep = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        image[v[keep], u[keep]] = 1
+        return
     reach = int(math.ceil(radius_px))
     for du in range(-reach, reach + 2):
         for dv in range(-reach, reach + 2):
@@ -210,7 +225,10 @@ def cloud_silhouette(
 ) -> np.ndarray:
     """The pixels (height, width) bool covered by the cloud's points splatted as discs of the
     spacing's radius (module docstring), then closed with a disc of `close_radius_px`."""
-    p_C = transform_points(invert(view.X_WC), np.asarray(points_W, float))
+    X_CW = invert(view.X_WC)
+    # einsum, not `@`: a (N, 3) @ (3, 3) product goes through BLAS, which on a loaded 2-core
+    # machine took 2.3 s for 2.3 million points against 0.06 s.
+    p_C = np.einsum("ij,nj->ni", X_CW[:3, :3], np.asarray(points_W, float)) + X_CW[:3, 3]
     p_C = p_C[p_C[:, 2] > 0]
     image = np.zeros((view.height, view.width), np.uint8)
     if len(p_C) == 0:
