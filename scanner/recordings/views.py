@@ -1,0 +1,202 @@
+"""An imported recording's views turned into the reconstruction's input: the working volume,
+the view pairs and each pair's cloud in its reference camera's frame.
+
+One camera moved between views: each view is the reference of a pair with its nearest usable
+neighbour (`two_view.pairing`), whose cloud comes from the product's own matcher
+(`two_view.cloud`). The clouds' pose is the reference view's, so everything after them (the
+filter, registration, fusion, surfaces) is what a scan of this product runs.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import statistics
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from reconstruction.common.errors import ScannerError
+from reconstruction.common.transforms import invert, transform_points
+from reconstruction.registration.views import ViewCloud
+from reconstruction.stereo.camera_model import PinholeCamera
+from reconstruction.two_view.cloud import PairCloud, pair_cloud
+from reconstruction.two_view.pairing import ViewPair, pair_views
+from reconstruction.two_view.scaling import downscaled_camera
+from reconstruction.working_volume.volume import (
+    PosedCamera,
+    WorkingVolume,
+    volume_from_common_view,
+    volume_from_masks,
+)
+from scanner.recordings.settings import RecordingProcessing
+from scanner.scan_dir.manifest import SavedScan
+
+log = logging.getLogger("scanner.recordings")
+
+# The masks' hull is carved inside a sphere this many times the common view's: an object may
+# reach beyond what every view holds whole, and a cell no view sees outside its mask stays.
+HULL_SEARCH_SCALE = 2.0
+# A used mask keeps the points whose pixel lies within this many pixels of it: hand-drawn
+# outlines are off by a pixel or two, and a point on the rim must not be cut by that.
+MASK_MARGIN_PX = 3
+
+
+@dataclass(frozen=True, eq=False)
+class RecordedViews:
+    """The recording's captures, in capture order: RGB images, masks (None where the recording
+    has none), each view's camera, its camera pose X_WC and flange pose X_WF (X_WC when the
+    recording gave camera poses), and the capture indices."""
+
+    indices: tuple[int, ...]
+    images: tuple[np.ndarray, ...]
+    masks: tuple[np.ndarray | None, ...]
+    cameras: tuple[PinholeCamera, ...]
+    X_WC: tuple[np.ndarray, ...]
+    X_WF: tuple[np.ndarray, ...]
+
+    def posed(self, k: int) -> PosedCamera:
+        c = self.cameras[k]
+        return PosedCamera(c.K, self.X_WC[k], c.width, c.height)
+
+
+def read_recorded_views(scan: SavedScan) -> RecordedViews:
+    """Every capture of an imported recording; a damaged one is an error naming it (a
+    recording is imported whole and checked, so damage is not a view to skip)."""
+    indices, images, masks, cameras, X_WC, X_WF = [], [], [], [], [], []
+    for index in scan.store.captured_indices():
+        capture = scan.store.read_capture(index)
+        if capture.sensor != "mono":
+            raise ScannerError(f"{scan.root}: capture {index} is {capture.sensor}, not mono")
+        indices.append(index)
+        images.append(capture.left)
+        masks.append(None if capture.mask is None else capture.mask > 0)
+        cameras.append(capture.camera)
+        X_WC.append(capture.X_WC)
+        X_WF.append(capture.X_WF)
+    if len(indices) < 2:
+        raise ScannerError(f"{scan.root}: {len(indices)} captures; two views make the first pair")
+    return RecordedViews(*map(tuple, (indices, images, masks, cameras, X_WC, X_WF)))
+
+
+def mask_used(settings: RecordingProcessing, k: int) -> bool:
+    """Whether view k's mask (when it has one) restricts the clouds."""
+    return settings.masks == "all" or (settings.masks == "even" and k % 2 == 0)
+
+
+def working_volume(views: RecordedViews, settings: RecordingProcessing) -> WorkingVolume:
+    """The sphere the object lies in: given, else the hull of the masks used, else the sphere
+    every view holds whole about the cameras' common point."""
+    if settings.volume_centre_m is not None:
+        return WorkingVolume(np.array(settings.volume_centre_m), settings.volume_radius_m, "given")
+    cameras = [views.posed(k) for k in range(len(views.indices))]
+    common = volume_from_common_view(cameras)
+    used = [k for k, m in enumerate(views.masks) if m is not None and mask_used(settings, k)]
+    if not used:
+        return common
+    search = WorkingVolume(common.centre_W, HULL_SEARCH_SCALE * common.radius_m, "common view")
+    return volume_from_masks(
+        [cameras[k] for k in used], [views.masks[k] for k in used], search
+    )
+
+
+def footprint_m(views: RecordedViews, volume: WorkingVolume, downscale: float) -> float:
+    """The median size of one (downscaled) pixel on the object at the working distance: what
+    the grids of the filter, the fused cloud and the surfaces are sized from."""
+    sizes = []
+    for camera, X_WC in zip(views.cameras, views.X_WC, strict=True):
+        f = downscaled_camera(camera, downscale).K[0, 0]
+        sizes.append(float(np.linalg.norm(volume.centre_W - X_WC[:3, 3])) / f)
+    return statistics.median(sizes)
+
+
+def hull_keep(views: RecordedViews, settings: RecordingProcessing):
+    """A `remove_points` hook keeping the points inside every used mask's cone (a few pixels
+    wider), or None without masks: the masks' visual hull as the region of interest, also for
+    the views whose own masks are not used."""
+    used = [k for k, m in enumerate(views.masks) if m is not None and mask_used(settings, k)]
+    if not used:
+        return None
+    kernel = cv2.getStructuringElement(
+        cv2.MORPH_ELLIPSE, (2 * MASK_MARGIN_PX + 1, 2 * MASK_MARGIN_PX + 1)
+    )
+    grown = [cv2.dilate(views.masks[k].astype(np.uint8), kernel) > 0 for k in used]
+    cameras = [views.posed(k) for k in used]
+
+    def keep(p_W: np.ndarray) -> np.ndarray:
+        out = np.ones(len(p_W), bool)
+        for camera, mask in zip(cameras, grown, strict=True):
+            p_C = transform_points(invert(camera.X_WC), p_W)
+            z = p_C[:, 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u = np.floor(p_C[:, 0] / z * camera.K[0, 0] + camera.K[0, 2] + 0.5).astype(int)
+                v = np.floor(p_C[:, 1] / z * camera.K[1, 1] + camera.K[1, 2] + 0.5).astype(int)
+            seen = (z > 0) & (u >= 0) & (v >= 0) & (u < camera.width) & (v < camera.height)
+            inside = np.ones(len(p_W), bool)
+            inside[seen] = mask[v[seen], u[seen]]
+            out &= inside
+        return out
+
+    return keep
+
+
+@dataclass(frozen=True, eq=False)
+class PairedClouds:
+    """The pairs, their clouds (in order), and the views made of them for the pipeline: view
+    k is pair k, with its reference view's flange pose."""
+
+    pairs: tuple[ViewPair, ...]
+    clouds: tuple[PairCloud, ...]
+    views: tuple[ViewCloud, ...]
+    seconds: tuple[float, ...]
+
+
+def paired_clouds(
+    views: RecordedViews, volume: WorkingVolume, settings: RecordingProcessing
+) -> PairedClouds:
+    """Every view's pair cloud, two pairs at a time per core (OpenCV's matching and feature
+    search release the GIL)."""
+    import time
+
+    pairs = pair_views(list(views.X_WC), volume.centre_W, settings.pairing)
+
+    def one(pair: ViewPair) -> tuple[PairCloud, float]:
+        t0 = time.perf_counter()
+        i, j = pair.reference, pair.other
+        mask = views.masks[i] if views.masks[i] is not None and mask_used(settings, i) else None
+        cloud = pair_cloud(
+            views.images[i],
+            views.images[j],
+            views.cameras[i],
+            views.cameras[j],
+            views.X_WC[i],
+            views.X_WC[j],
+            volume.centre_W,
+            volume.radius_m,
+            settings.stereo,
+            mask,
+            settings.two_view,
+        )
+        return cloud, time.perf_counter() - t0
+
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        done = list(pool.map(one, pairs))
+    out = []
+    for k, (pair, (cloud, _)) in enumerate(zip(pairs, done, strict=True)):
+        i = pair.reference
+        out.append(
+            ViewCloud(k, cloud.points_C, cloud.colors, views.X_WF[i], cloud.depth, float(k))
+        )
+        log.info(
+            "pair %d-%d: %d points, epipolar %.2f px%s",
+            views.indices[i],
+            views.indices[pair.other],
+            len(cloud.points_C),
+            cloud.pose.after.median_px,
+            " (pose refined)" if cloud.pose.refined else "",
+        )
+    return PairedClouds(
+        pairs, tuple(c for c, _ in done), tuple(out), tuple(s for _, s in done)
+    )
