@@ -489,3 +489,19 @@ def test_commands_for_scans_of_the_cell_refuse_an_imported_recording(tmp_path, c
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert "is an imported recording (plain, sensor mono)" in r.stderr
     assert sorted(p.name for p in out.iterdir()) == ["captures", "scan.yaml"]
+
+
+def test_a_failure_while_writing_leaves_nothing(tmp_path, capfd, monkeypatch):
+    import scanner.recordings.scan_writer as writer
+
+    folder, _, _ = plain_recording(tmp_path, depth=False)
+    read = writer.read_image_rgb
+
+    def fails_on_the_third(path):
+        if path.name == "2.png":
+            raise ScannerError(f"{path}: unreadable (simulated)")
+        return read(path)
+
+    monkeypatch.setattr(writer, "read_image_rgb", fails_on_the_third)
+    err = refused(capfd, folder, tmp_path / "scan")
+    assert "2.png: unreadable (simulated)" in err
