@@ -1,12 +1,11 @@
 """`scanner import-recording`: recordings of other systems (IDR/NeuS, COLMAP, the plain form)
-become scan directories; every bad input is refused in one line with nothing written.
+become scan directories with the poses, cameras, images and masks of the source.
 
 The IDR tests use four DTU MVS scan 24 views downscaled by 4 (P scaled to match); COLMAP and
-the plain form are synthetic, with known poses."""
+the plain form are synthetic, with known poses (tests/recording_files.py)."""
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import cv2
@@ -14,113 +13,33 @@ import numpy as np
 import pytest
 import yaml
 
-from reconstruction.common.errors import ScannerError
-from reconstruction.common.transforms import invert, make_pose
+from reconstruction.common.transforms import invert
 from reconstruction.recordings import colmap_model
-from reconstruction.recordings.colmap import (
-    KnownDistance,
-    colmap_camera_of,
-    image_of,
-    pinhole_of,
-)
+from reconstruction.recordings.colmap import KnownDistance, pinhole_of
 from reconstruction.recordings.formats import read_recording
-from reconstruction.stereo.camera_model import PinholeCamera
 from scanner.scan_dir.manifest import open_scan
-from tests.conftest import shared_data
 from tests.in_process import scanner
-
-DTU = "real/dtu_mvs_scan24"
-DTU_VIEWS = 4
-DOWNSCALE = 4
-# cv2.INTER_AREA by 4: new pixel u' covers old pixels 4u' .. 4u'+3, centre 4u' + 1.5.
-S_DOWN = np.array(
-    [[1 / DOWNSCALE, 0, -1.5 / DOWNSCALE], [0, 1 / DOWNSCALE, -1.5 / DOWNSCALE], [0, 0, 1]]
+from tests.recording_files import (
+    COLMAP_CAMERA,
+    COLMAP_NAMES,
+    COLMAP_UNIT_M,
+    DOWNSCALE,
+    DTU_CX_PX,
+    DTU_CY_PX,
+    DTU_FX_PX,
+    DTU_FY_PX,
+    DTU_P_WC0_M,
+    DTU_VIEWS,
+    assert_poses_close,
+    colmap_project,
+    dtu_small_folder,
+    plain_recording,
 )
-# DTU scan 24, view 0 (its README: cv2.decomposeProjectionMatrix of P_0).
-DTU_FX_PX, DTU_FY_PX, DTU_CX_PX, DTU_CY_PX = 2892.33, 2883.18, 823.21, 619.07
-DTU_P_WC0_M = (0.1908, -0.0012, 0.0243)
-# Pose comparisons: numbers passed through text files and quaternions, far below a micrometre.
-POSE_ATOL_M = 1e-9
-ROT_ATOL = 1e-9
 
 
-# -- helpers ----------------------------------------------------------------------------------
-def look_at(p_WC, p_WT=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """X_WC of a camera at p_WC whose optical axis (+z) points at p_WT, +y towards -z_W."""
-    p_WC = np.asarray(p_WC, float)
-    z = np.asarray(p_WT, float) - p_WC
-    z /= np.linalg.norm(z)
-    x = np.cross([0.0, 0.0, -1.0], z)
-    x /= np.linalg.norm(x)
-    return make_pose(np.column_stack([x, np.cross(z, x), z]), p_WC)
-
-
-def ring_poses(n: int, radius: float) -> list[np.ndarray]:
-    angles = np.linspace(0, np.pi / 2, n)
-    return [look_at((radius * np.cos(a), radius * np.sin(a), 0.5 * radius)) for a in angles]
-
-
-def write_noise_images(folder: Path, names: list[str], width: int, height: int) -> list[Path]:
-    folder.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(0)
-    paths = []
-    for name in names:
-        path = folder / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(path), rng.integers(0, 256, (height, width, 3), dtype=np.uint8))
-        paths.append(path)
-    return paths
-
-
-def assert_poses_close(X_a: np.ndarray, X_b: np.ndarray) -> None:
-    np.testing.assert_allclose(X_a[:3, :3], X_b[:3, :3], atol=ROT_ATOL)
-    np.testing.assert_allclose(X_a[:3, 3], X_b[:3, 3], atol=POSE_ATOL_M)
-
-
-def refused(capfd, source: Path, out: Path, *options) -> str:
-    """The one-line error of an import that must fail with exit 2 and write nothing."""
-    r = scanner(capfd, "import-recording", source, "--out", out, *options)
-    assert r.returncode == 2, r.stdout + r.stderr
-    assert "Traceback" not in r.stderr
-    assert len(r.stderr.strip().splitlines()) == 1
-    assert not out.exists()
-    assert not [p for p in out.parent.iterdir() if p.name.startswith(f".{out.name}.")]
-    return r.stderr
-
-
-# -- IDR (DTU subset) -------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def dtu_small(tmp_path_factory) -> Path:
-    """An IDR folder of the first DTU views, images and masks downscaled by 4 and P scaled to
-    match (pixel centres kept where OpenCV puts them)."""
-    src = shared_data(DTU)
-    folder = tmp_path_factory.mktemp("idr") / "dtu_small"
-    (folder / "images").mkdir(parents=True)
-    (folder / "mask").mkdir()
-    cams = np.load(src / "cameras_sphere.npz")
-    out = {}
-    for i in range(DTU_VIEWS):
-        image = cv2.imread(str(src / "images" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED)
-        mask = cv2.imread(str(src / "mask" / f"{i:03d}.png"), cv2.IMREAD_UNCHANGED)
-        size = (image.shape[1] // DOWNSCALE, image.shape[0] // DOWNSCALE)
-        cv2.imwrite(
-            str(folder / "images" / f"{i:06d}.png"),
-            cv2.resize(image, size, interpolation=cv2.INTER_AREA),
-        )
-        cv2.imwrite(
-            str(folder / "mask" / f"{i:03d}.png"),
-            cv2.resize(mask, size, interpolation=cv2.INTER_AREA),
-        )
-        P = cams[f"world_mat_{i}"].astype(float)
-        P[:3] = S_DOWN @ P[:3]
-        out[f"world_mat_{i}"] = P
-        out[f"scale_mat_{i}"] = cams[f"scale_mat_{i}"]
-    np.savez(folder / "cameras_sphere.npz", **out)
-    return folder
-
-
-def copy_of(folder: Path, tmp_path: Path) -> Path:
-    return Path(shutil.copytree(folder, tmp_path / folder.name))
+    return dtu_small_folder(tmp_path_factory.mktemp("idr"))
 
 
 def test_idr_dtu_views_in_metres_with_dtu_intrinsics(dtu_small):
@@ -186,37 +105,6 @@ def test_idr_import_writes_a_mono_scan_directory(dtu_small, tmp_path, capfd):
     assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
-# -- COLMAP -----------------------------------------------------------------------------------
-COLMAP_UNIT_M = 0.25  # metres per model unit of the synthetic models
-COLMAP_NAMES = ["a/frame_000.png", "a/frame_001.png", "a/frame_002.png", "a/frame_003.png"]
-COLMAP_CAMERA = PinholeCamera(
-    np.array([[70.0, 0, 31.5], [0, 72.0, 23.25], [0, 0, 1]]),
-    np.array([-0.1, 0.02, 0.001, -0.002, 0.0]),
-    64,
-    48,
-)
-
-
-def colmap_project(
-    tmp_path: Path, binary: bool, camera=None, names=COLMAP_NAMES
-) -> tuple[Path, list]:
-    """A COLMAP project with known X_WC (metres) of four views: images/ and sparse/0/."""
-    X_WC_m = ring_poses(len(names), 1.0)
-    images = {}
-    for k, (name, X_WC) in enumerate(zip(names, X_WC_m, strict=True)):
-        X_WC_units = X_WC.copy()
-        X_WC_units[:3, 3] /= COLMAP_UNIT_M
-        # Ids need not follow the names' order: the reader orders views by name.
-        images[10 - k] = image_of(invert(X_WC_units), 10 - k, 1, name)
-    cam = camera if camera is not None else colmap_camera_of(COLMAP_CAMERA, 1)
-    project = tmp_path / "colmap_project"
-    colmap_model.write_model(
-        project / "sparse" / "0", colmap_model.ColmapModel({1: cam}, images), binary
-    )
-    write_noise_images(project / "images", names, cam.width, cam.height)
-    return project, X_WC_m
-
-
 @pytest.mark.parametrize("binary", [False, True])
 def test_colmap_round_trip_with_scale(binary, tmp_path):
     project, X_WC_m = colmap_project(tmp_path, binary)
@@ -274,40 +162,6 @@ def test_colmap_project_imports_into_a_scan_directory(tmp_path, capfd):
     assert_poses_close(scan.store.read_capture(1).X_WC, X_WC_m[1])
 
 
-# -- plain form -------------------------------------------------------------------------------
-def plain_recording(tmp_path: Path, n: int = 3, depth: bool = True) -> tuple[Path, dict, list]:
-    """recording.yaml in millimetres with flange poses X_WF and a top-level X_FC; masks and
-    16-bit depth images."""
-    folder = tmp_path / "plain_rec"
-    write_noise_images(folder / "img", [f"{i}.png" for i in range(n)], 32, 24)
-    (folder / "masks").mkdir()
-    X_FC_m = make_pose(np.eye(3), (0.01, -0.02, 0.1))
-    X_WF_m = [X @ invert(X_FC_m) for X in ring_poses(n, 0.5)]
-    views = []
-    for i, X_WF in enumerate(X_WF_m):
-        mask = np.zeros((24, 32), np.uint8)
-        mask[5:15, 8:20] = 1  # 0/1 masks occur; imported as 0/255
-        cv2.imwrite(str(folder / "masks" / f"{i}.png"), mask)
-        X_mm = X_WF.copy()
-        X_mm[:3, 3] *= 1000
-        view = {"image": f"img/{i}.png", "X_WF": X_mm.tolist(), "mask": f"masks/{i}.png"}
-        if depth:
-            cv2.imwrite(str(folder / f"depth{i}.png"), np.full((24, 32), 500 + i, np.uint16))
-            view["depth"] = f"depth{i}.png"
-        views.append(view)
-    X_FC_mm = X_FC_m.copy()
-    X_FC_mm[:3, 3] *= 1000
-    doc = {
-        "unit_m": 0.001,
-        "K": [[30.0, 0, 15.5], [0, 30.0, 11.5], [0, 0, 1]],
-        "X_FC": X_FC_mm.tolist(),
-        "depth_unit_m": 0.0001,
-        "views": views,
-    }
-    (folder / "recording.yaml").write_text(yaml.safe_dump(doc))
-    return folder, doc, [X @ X_FC_m for X in X_WF_m]
-
-
 def test_plain_flange_poses_give_X_WC_through_X_FC(tmp_path, capfd):
     folder, _, X_WC_m = plain_recording(tmp_path)
     rec = read_recording(folder)
@@ -326,166 +180,3 @@ def test_plain_flange_poses_give_X_WC_through_X_FC(tmp_path, capfd):
     np.testing.assert_allclose(c.X_WC, X_WC_m[2], atol=1e-12)
     assert c.depth.dtype == np.uint16 and int(c.depth[0, 0]) == 502 and c.depth_scale_m == 1e-4
     assert (c.mask == 255).sum() == 10 * 12 and set(np.unique(c.mask)) == {0, 255}
-
-
-# -- bad input: one line, exit 2, nothing written ---------------------------------------------
-def test_idr_more_images_than_cameras_is_refused(dtu_small, tmp_path, capfd):
-    folder = copy_of(dtu_small, tmp_path)
-    shutil.copy(folder / "images" / "000000.png", folder / "images" / "000099.png")
-    err = refused(capfd, folder, tmp_path / "scan")
-    assert "4 cameras (world_mat_i), but 5 images" in err
-
-
-def test_idr_fewer_images_than_cameras_is_refused(dtu_small, tmp_path):
-    folder = copy_of(dtu_small, tmp_path)
-    (folder / "images" / "000002.png").unlink()
-    with pytest.raises(ScannerError, match="4 cameras .world_mat_i., but 3 images"):
-        read_recording(folder)
-
-
-def turned_around(P: np.ndarray) -> np.ndarray:
-    """The projection of the same camera turned half a turn about its y axis."""
-    K, R_CW, c_h = cv2.decomposeProjectionMatrix(P[:3])[:3]
-    R_CW = np.diag([-1.0, 1.0, -1.0]) @ R_CW
-    out = P.copy()
-    out[:3] = K @ np.column_stack([R_CW, -R_CW @ (c_h[:3, 0] / c_h[3, 0])])
-    return out
-
-
-def _replace_world_mat(folder: Path, i: int, P: np.ndarray) -> None:
-    data = dict(np.load(folder / "cameras_sphere.npz"))
-    data[f"world_mat_{i}"] = P
-    np.savez(folder / "cameras_sphere.npz", **data)
-
-
-@pytest.mark.parametrize(
-    "change, message",
-    [
-        (lambda P: np.where(np.arange(16).reshape(4, 4) == 5, np.nan, P), "expected a finite 3x4"),
-        (lambda P: np.vstack([P[:1], P[:1], P[2:]]), "singular"),
-        (lambda P: turned_around(P), "behind the camera"),
-    ],
-    ids=["non-finite", "singular", "behind"],
-)
-def test_idr_bad_projection_is_refused(change, message, dtu_small, tmp_path):
-    folder = copy_of(dtu_small, tmp_path)
-    P = np.load(folder / "cameras_sphere.npz")["world_mat_1"].astype(float)
-    _replace_world_mat(folder, 1, change(P))
-    with pytest.raises(ScannerError, match=message) as e:
-        read_recording(folder)
-    assert "world_mat_1" in str(e.value)
-
-
-def test_idr_skewed_camera_is_refused(dtu_small, tmp_path):
-    folder = copy_of(dtu_small, tmp_path)
-    P = np.load(folder / "cameras_sphere.npz")["world_mat_2"].astype(float)
-    shear = np.array([[1, 0.01, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
-    _replace_world_mat(folder, 2, shear @ P)
-    with pytest.raises(ScannerError, match="world_mat_2: K has skew"):
-        read_recording(folder)
-
-
-def test_masks_of_another_count_are_refused(dtu_small, tmp_path, capfd):
-    folder = copy_of(dtu_small, tmp_path)
-    (folder / "mask" / "003.png").unlink()
-    err = refused(capfd, folder, tmp_path / "scan")
-    assert "3 mask(s), expected one per image (4" in err
-
-
-def test_masks_of_another_size_are_refused(dtu_small, tmp_path):
-    folder = copy_of(dtu_small, tmp_path)
-    masks = tmp_path / "other_masks"
-    masks.mkdir()
-    for i in range(DTU_VIEWS):
-        cv2.imwrite(str(masks / f"m{i}.png"), np.zeros((150, 200), np.uint8))
-    with pytest.raises(ScannerError, match=r"m0.png: mask is 200x150 px, expected .* \(400x300\)"):
-        read_recording(folder, masks=masks)
-
-
-def test_images_of_another_size_than_the_camera_are_refused(tmp_path, capfd):
-    project, _ = colmap_project(tmp_path, binary=False)
-    write_noise_images(project / "images", [COLMAP_NAMES[2]], 80, 60)
-    err = refused(capfd, project, tmp_path / "scan", "--scale", "1")
-    assert "frame_002.png: image is 80x60 px, the camera of view 2 says 64x48" in err
-
-
-def test_two_views_at_the_same_pose_are_refused(tmp_path):
-    folder, doc, _ = plain_recording(tmp_path, depth=False)
-    X = np.array(doc["views"][0]["X_WF"])
-    X[0, 3] += 0.5  # 0.5 mm (the file's unit): closer than 1 mm
-    doc["views"][1]["X_WF"] = X.tolist()
-    (folder / "recording.yaml").write_text(yaml.safe_dump(doc))
-    with pytest.raises(ScannerError, match=r"views 0 \(0.png\) and 1 \(1.png\) .* 0.5 mm apart"):
-        read_recording(folder)
-
-
-def test_colmap_without_a_scale_is_refused(tmp_path, capfd):
-    project, _ = colmap_project(tmp_path, binary=True)
-    err = refused(capfd, project, tmp_path / "scan")
-    assert "a COLMAP model has no unit" in err and "--known-distance" in err
-
-
-@pytest.mark.parametrize("binary", [False, True])
-def test_unknown_colmap_camera_model_is_refused(binary, tmp_path):
-    cam = colmap_model.ColmapCamera(1, "FOV", 64, 48, np.array([70.0, 72, 32, 24, 0.1]))
-    project, _ = colmap_project(tmp_path, binary, camera=cam)
-    with pytest.raises(ScannerError, match="uses the COLMAP model FOV; expected PINHOLE"):
-        read_recording(project, metres_per_unit=1.0)
-
-
-def test_unnamed_colmap_camera_model_is_refused(tmp_path):
-    project, _ = colmap_project(tmp_path, binary=False)
-    cameras = project / "sparse" / "0" / "cameras.txt"
-    cameras.write_text(cameras.read_text().replace("OPENCV", "BROWN_CONRADY"))
-    with pytest.raises(ScannerError, match="cameras.txt:3: unknown COLMAP camera model 'BROWN"):
-        read_recording(project, metres_per_unit=1.0)
-
-
-def test_an_out_folder_that_is_not_empty_is_refused(tmp_path, capfd):
-    folder, _, _ = plain_recording(tmp_path, depth=False)
-    out = tmp_path / "scan"
-    out.mkdir()
-    (out / "notes.txt").write_text("mine")
-    r = scanner(capfd, "import-recording", folder, "--out", out)
-    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
-    assert "is not empty (it holds notes.txt)" in r.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
-    # An earlier import is not replaced either (there is no --force).
-    r = scanner(capfd, "import-recording", folder, "--out", tmp_path / "first")
-    assert r.returncode == 0, r.stderr
-    before = (tmp_path / "first" / "scan.yaml").read_bytes()
-    r = scanner(capfd, "import-recording", folder, "--out", tmp_path / "first")
-    assert r.returncode == 2 and "is not empty" in r.stderr
-    assert (tmp_path / "first" / "scan.yaml").read_bytes() == before
-
-
-def test_scale_and_format_options_are_checked(tmp_path, capfd):
-    folder, _, _ = plain_recording(tmp_path, depth=False)
-    with pytest.raises(ScannerError, match="--scale: the plain form states its unit"):
-        read_recording(folder, metres_per_unit=0.001)
-    project, _ = colmap_project(tmp_path, binary=False)
-    known = KnownDistance(COLMAP_NAMES[0], "nope.png", 1.0)
-    with pytest.raises(ScannerError, match="--known-distance: no image named 'nope.png'"):
-        read_recording(project, known_distance=known)
-    with pytest.raises(ScannerError, match="give one of them, not both"):
-        read_recording(project, metres_per_unit=1.0, known_distance=known)
-    (project / "recording.yaml").write_text("unit_m: 1\n")
-    with pytest.raises(ScannerError, match="holds the files of colmap and plain; choose one"):
-        read_recording(project)
-    out = tmp_path / "scan"
-    for distance in ("0", "-1", "nan", "ten"):
-        r = scanner(capfd, "import-recording", project, "--out", out, "--format", "colmap",
-                    "--known-distance", COLMAP_NAMES[0], COLMAP_NAMES[1], distance)  # fmt: skip
-        assert r.returncode == 2 and "--known-distance: expected a distance in metres" in r.stderr
-        assert not out.exists()
-
-
-def test_commands_for_scans_of_the_cell_refuse_an_imported_recording(tmp_path, capfd):
-    folder, _, _ = plain_recording(tmp_path, depth=False)
-    out = tmp_path / "scan"
-    assert scanner(capfd, "import-recording", folder, "--out", out).returncode == 0
-    for command in (["reconstruct", out], ["scan", "--resume", out]):
-        r = scanner(capfd, *command)
-        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
-        assert "is an imported recording (plain, sensor mono)" in r.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["captures", "scan.yaml"]
