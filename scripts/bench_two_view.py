@@ -26,6 +26,7 @@ from reconstruction.common.transforms import make_pose, transform_points
 from reconstruction.stereo.camera_model import PinholeCamera
 from reconstruction.stereo.params import stereo_params
 from reconstruction.two_view.cloud import TwoViewConfig, pair_cloud
+from reconstruction.two_view.epipolar import EpipolarConfig
 from reconstruction.two_view.pairing import PairingConfig, pair_views
 
 # Split-half points farther than this from the other half count as surface only one half saw.
@@ -58,6 +59,12 @@ def main() -> None:
     parser.add_argument("--downscale", type=float, default=2.0)
     parser.add_argument("--pairs-per-view", type=int, default=1)
     parser.add_argument(
+        "--max-epipolar-px",
+        type=float,
+        default=EpipolarConfig().max_error_px,
+        help="refine a pair's relative pose above this median epipolar error",
+    )
+    parser.add_argument(
         "--stereo", default="{}", help='StereoParams fields as JSON, e.g. {"block_size_px": 5}'
     )
     args = parser.parse_args()
@@ -67,7 +74,9 @@ def main() -> None:
     pairs = pair_views(
         [v[3] for v in views], centre_m, PairingConfig(pairs_per_view=args.pairs_per_view)
     )
-    config = TwoViewConfig(downscale=args.downscale)
+    config = TwoViewConfig(
+        downscale=args.downscale, epipolar=EpipolarConfig(max_error_px=args.max_epipolar_px)
+    )
     params = stereo_params(**json.loads(args.stereo))
     per_pair, halves = [], {0: [], 1: []}
     for pair in pairs:
@@ -100,13 +109,19 @@ def main() -> None:
                 "mask_fraction": round(len(cloud) / (mask_i.sum() / args.downscale**2), 3),
                 "seconds": round(seconds, 2),
                 "epipolar_median_px": round(cloud.pose.before.median_px, 3),
+                "epipolar_median_after_px": round(cloud.pose.after.median_px, 3),
                 "epipolar_p90_px": round(cloud.pose.before.p90_px, 3),
                 "matches": cloud.pose.before.matches,
                 "refined": cloud.refined,
             }
         )
         print(json.dumps(per_pair[-1]), flush=True)
-    result = {"downscale": args.downscale, "stereo": json.loads(args.stereo), "pairs": per_pair}
+    result = {
+        "downscale": args.downscale,
+        "max_epipolar_px": args.max_epipolar_px,
+        "stereo": json.loads(args.stereo),
+        "pairs": per_pair,
+    }
     if halves[0] and halves[1]:
         even, odd = np.concatenate(halves[0]), np.concatenate(halves[1])
         distances_m, _ = cKDTree(odd).query(even, workers=-1)

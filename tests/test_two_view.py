@@ -146,6 +146,25 @@ def test_skewed_camera_is_refused_for_a_turn():
         rotate_camera(camera, 1)
 
 
+def test_bad_inputs_name_what_to_fix():
+    camera = PinholeCamera(
+        np.array([[480.0, 0, 159.5], [0, 480, 119.5], [0, 0, 1]]), np.zeros(5), 320, 240
+    )
+    image = np.zeros((240, 320), np.uint8)
+    X_WCj = make_pose(np.eye(3), [0.06, 0, 0])
+    args = (camera, camera, np.eye(4), X_WCj, np.array([0, 0, 0.5]), 0.1, StereoParams())
+    with pytest.raises(
+        ScannerError, match=r"other image is 160x120 px, its camera expects 320x240"
+    ):
+        pair_cloud(image, image[::2, ::2], *args)
+    with pytest.raises(ScannerError, match=r"reference mask"):
+        pair_cloud(image, image, *args, mask_i=np.ones((10, 10), bool))
+    with pytest.raises(ScannerError, match=r"two_view\.downscale"):
+        TwoViewConfig(downscale=0.5)
+    with pytest.raises(ScannerError, match=r"pairing\.min_angle_rad"):
+        PairingConfig(min_angle_rad=0.5, max_angle_rad=0.4)
+
+
 # --- a synthetic textured plane: exact depths -----------------------------------------------------
 
 

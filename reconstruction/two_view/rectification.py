@@ -21,8 +21,9 @@ convergence of two views aimed at one centre (about 10 deg on DTU), is rectifica
 rectified pixel falls outside either source image: on a DTU pair tilted by 30 deg that is an
 8.6x zoom, one pixel in 70 of the view kept (alpha = 1 instead shrinks it by a third).
 `pair_rectification` takes stereoRectify's rotations and chooses the rectified cameras itself:
-the source focal length, and a grid just large enough for the part of the reference image that
-can be matched, with black corners that the matcher's texture filter rejects.
+the source focal length, and a grid that holds the reference image plus, on its left, room for
+the disparity search (SGBM matches no column left of its search's end); pixels of that grid
+outside both images stay black, and points there are dropped (`two_view.cloud`).
 """
 
 from __future__ import annotations
@@ -177,8 +178,8 @@ def pair_rectification(rig: PairRig, z_min_m: float, max_growth: float = 3.0) ->
     The rectified focal length is the mean of the two source focal lengths. SGBM leaves the
     first min_disparity + num_disparities columns of the left image without a match (their
     search would leave the right image), and two views aimed at one centre with zero disparity
-    at infinity see the working volume at large disparities (about 140 px on 4x downscaled DTU
-    pairs, half the image width at full resolution). So the grid starts that far left of the
+    at infinity see the working volume at large disparities (about a third of the image width
+    on DTU pairs). So the grid starts that far left of the
     reference image, over the other image's part there, and ends with the reference image; it
     holds the rows both images share. The record is the product's `Rectification`, whose
     `image_size` is that of the rectified grid (not the source's); `rectify_views` resamples the
