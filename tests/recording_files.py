@@ -78,16 +78,17 @@ def refused(capfd, source: Path, out: Path, *options) -> str:
 
 
 # -- IDR (DTU subset) -------------------------------------------------------------------------
-def dtu_small_folder(parent: Path) -> Path:
-    """PARENT/dtu_small: an IDR folder of the first DTU views, images and masks downscaled by 4
-    and P scaled to match (pixel centres kept where OpenCV puts them); skips without the data."""
+def dtu_small_folder(parent: Path, views: int = DTU_VIEWS) -> Path:
+    """PARENT/dtu_small: an IDR folder of the first `views` DTU views, images and masks
+    downscaled by 4 and P scaled to match (pixel centres kept where OpenCV puts them); skips
+    without the data."""
     src = shared_data(DTU)
     folder = parent / "dtu_small"
     (folder / "images").mkdir(parents=True)
     (folder / "mask").mkdir()
     cams = np.load(src / "cameras_sphere.npz")
     out = {}
-    for i in range(DTU_VIEWS):
+    for i in range(views):
         image = cv2.imread(str(src / "images" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED)
         mask = cv2.imread(str(src / "mask" / f"{i:03d}.png"), cv2.IMREAD_UNCHANGED)
         size = (image.shape[1] // DOWNSCALE, image.shape[0] // DOWNSCALE)

@@ -55,8 +55,8 @@ def test_the_common_view_is_the_point_every_axis_passes():
     cams = _ring()
     np.testing.assert_allclose(common_view_centre(cams), CENTRE, atol=1e-9)
     volume = volume_from_common_view(cams)
-    # The shorter half-side (120 px) at 0.5 m and 400 px focal length: 0.15 m.
-    assert volume.radius_m == pytest.approx(0.5 * 120 / 400, rel=1e-6)
+    # The half-diagonal (200 px) at 0.5 m and 400 px focal length: 0.25 m.
+    assert volume.radius_m == pytest.approx(0.5 * 200 / 400, rel=1e-6)
     assert volume.source == "common view"
 
 

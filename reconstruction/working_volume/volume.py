@@ -74,23 +74,21 @@ def common_view_centre(cameras: Sequence[PosedCamera]) -> np.ndarray:
 
 
 def volume_from_common_view(cameras: Sequence[PosedCamera]) -> WorkingVolume:
-    """The sphere about the axes' common point that every view sees whole: its radius is the
-    smallest, over the views, of the distance to the centre times the tangent of the half
-    field of view on the image's shorter side."""
+    """The sphere about the axes' common point that holds everything a view sees at that
+    point's depth: its radius is the largest, over the views, of the distance to the centre
+    times the tangent of the angle to the farthest image corner. A robot's views of one object
+    frame it, and an object may fill (and overflow) every frame: the sphere must hold what any
+    view shows of it, not what all of them show whole; beyond it lies the background."""
     centre = common_view_centre(cameras)
     radii = []
     for cam in cameras:
         (uv,), (z,) = project(cam, centre[None])
         if not z > 0:
             raise ScannerError("working volume: the cameras' common point lies behind a camera")
-        # The image border nearest to the projected centre bounds what the view holds around it.
-        margin_px = min(uv[0], cam.width - uv[0], uv[1], cam.height - uv[1])
-        if margin_px <= 0:
-            continue  # this view does not see the common point: it bounds nothing
-        radii.append(z * margin_px / max(cam.K[0, 0], cam.K[1, 1]))
-    if not radii:
-        raise ScannerError("working volume: no camera sees the cameras' common point")
-    return WorkingVolume(centre, float(min(radii)), "common view")
+        corners = np.array([[0, 0], [cam.width, 0], [0, cam.height], [cam.width, cam.height]])
+        reach_px = np.linalg.norm(corners - uv, axis=1).max()
+        radii.append(z * reach_px / min(cam.K[0, 0], cam.K[1, 1]))
+    return WorkingVolume(centre, float(max(radii)), "common view")
 
 
 def volume_from_masks(
@@ -112,6 +110,9 @@ def volume_from_masks(
     grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
     grid = grid[np.einsum("ij,ij->i", grid, grid) <= search.radius_m**2] + search.centre_W
     keep = np.ones(len(grid), bool)
+    # A cell no view sees is not known to be object: it must lie in enough images (a quarter
+    # of them, at least two), and inside the mask of every one it lies in.
+    seen_by = np.zeros(len(grid), int)
     for cam, mask in zip(cameras, masks, strict=True):
         mask = np.asarray(mask)
         if mask.shape != (cam.height, cam.width):
@@ -122,11 +123,11 @@ def volume_from_masks(
         uv, z = project(cam, grid[keep])
         u, v = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
         inside = (z > 0) & (u >= 0) & (v >= 0) & (u < cam.width) & (v < cam.height)
+        seen_by[keep] += inside
         hit = np.ones(len(u), bool)
         hit[inside] = mask[v[inside], u[inside]] > 0
         keep[np.flatnonzero(keep)[~hit]] = False
-        if not keep.any():
-            break
+    keep &= seen_by >= max(2, math.ceil(len(cameras) / 4))
     if not keep.any():
         raise ScannerError(
             "working volume: no point projects inside every mask: the masks do not belong to "
@@ -136,4 +137,7 @@ def volume_from_masks(
     lo, hi = hull.min(axis=0), hull.max(axis=0)
     centre = (lo + hi) / 2
     radius = float(np.linalg.norm(hull - centre, axis=1).max()) + math.sqrt(3) * step + margin_m
+    if radius >= search.radius_m:
+        # Views from one side leave the hull open in depth: it is no tighter than the search.
+        return search
     return WorkingVolume(centre, radius, "masks")

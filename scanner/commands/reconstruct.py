@@ -77,6 +77,21 @@ def add_reconstruct_parser(sub) -> None:
         help="run the tasks on this Ray cluster (HOST:PORT, or auto) instead of a local Ray; "
         "its nodes need scanner installed and the scans at the same paths (default: local)",
     )
+    reconstruct.add_argument(
+        "--masks",
+        choices=("all", "even", "none"),
+        help="imported recordings: the views whose masks restrict the clouds; with even, the "
+        "odd views' masks score the model as views it did not use (default: the --config's "
+        "masks, all)",
+    )
+    reconstruct.add_argument(
+        "--volume",
+        type=float,
+        nargs=4,
+        metavar=("X", "Y", "Z", "R"),
+        help="imported recordings: the sphere the object lies in (centre and radius, metres, in "
+        "the recording's world) (default: from the masks, else the cameras' common view)",
+    )
     add_config_option(
         reconstruct,
         "--formats",
@@ -160,6 +175,8 @@ def run_reconstruct_command(args: argparse.Namespace) -> int:
         units=args.units,
         frame=args.frame,
         decimate=args.decimate,
+        masks=args.masks,
+        volume=None if args.volume is None else tuple(args.volume),
     )
     if len(dirs) > 1 or args.ray_address is not None or args.workers is not None:
         return _reconstruct_batch(dirs, options, args)

@@ -25,6 +25,10 @@ class ReconstructOptions:
     units: str | None = None  # --units, --frame, --decimate: processing.mesh_export
     frame: str | None = None
     decimate: int | None = None
+    # Imported recordings only: whose masks restrict the clouds (all, even, none), and the
+    # working volume (x, y, z, radius in metres).
+    masks: str | None = None
+    volume: tuple[float, float, float, float] | None = None
 
 
 def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructRun:
@@ -38,13 +42,18 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
         load_processing_config,
         run_reconstruct,
     )
-    from scanner.scan_dir.manifest import open_scan, require_robot_scan
+    from scanner.scan_dir.manifest import open_scan
     from scanner.scan_dir.results_folder import require_replaceable
 
     scan = open_scan(scan_dir)
-    # Imported recordings (one camera, its pose per view) are reconstructed by their own
-    # pipeline, which this command does not run yet.
-    require_robot_scan(scan, "scanner reconstruct")
+    if scan.recording is not None:
+        # One camera, its pose per view: pairs of its views make the clouds.
+        from scanner.recordings.reconstruct import reconstruct_recording_with
+
+        return reconstruct_recording_with(scan, options)
+    if options.masks is not None or options.volume is not None:
+        flag = "--masks" if options.masks is not None else "--volume"
+        raise ScannerError(f"{flag}: only for an imported recording; {scan_dir} is a scan")
     if options.config is not None:
         processing = load_processing_config(options.config)
     else:

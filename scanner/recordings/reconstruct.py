@@ -38,7 +38,6 @@ from reconstruction.pipeline import (
     reconstruct_views,
 )
 from reconstruction.registration.filtering import RegionOfInterest
-from reconstruction.surfaces.config import MeshExportConfig
 from reconstruction.surfaces.export import prepare_exports
 from reconstruction.surfaces.fused import fuse_clouds
 from reconstruction.working_volume.table import TablePlane, above_table, find_table
@@ -54,6 +53,7 @@ from scanner.recordings.views import (
     read_recorded_views,
     working_volume,
 )
+from scanner.reports.self_checks import self_check_record
 from scanner.scan_dir.captures import atomic_write_text
 from scanner.scan_dir.manifest import SavedScan
 from scanner.scan_dir.outputs import RECONSTRUCTION_MARKER
@@ -80,10 +80,18 @@ def pipeline_config(
     rec = settings.reconstruction
     voxel = settings.voxel_footprints * footprint
     roi = RegionOfInterest("sphere", tuple(map(float, volume.centre_W)), float(volume.radius_m))
-    surfaces = replace(rec.surfaces, fused_voxel_size_m=voxel, tsdf_voxel_size_m=2 * voxel)
+    fused = settings.fused_footprints * footprint
+    surfaces = replace(
+        rec.surfaces,
+        fused_voxel_size_m=fused,
+        tsdf_voxel_size_m=fused,
+        poisson_max_distance_m=settings.poisson_trim_footprints * footprint,
+    )
     handeye = replace(rec.handeye, enabled=rec.handeye.enabled and not poses_given)
+    register = rec.icp.enabled and (settings.register_given_poses or not poses_given)
     return replace(
         rec,
+        icp=replace(rec.icp, enabled=register),
         filter=replace(rec.filter, roi=roi, voxel_size_m=voxel),
         surfaces=surfaces,
         handeye=handeye,
@@ -132,7 +140,13 @@ def _keep_hook(views, settings, table: TablePlane | None):
 
 def _masked_views(views: RecordedViews, ks, X_WC):
     return [
-        (views.cameras[k].K, X_WC[k], views.cameras[k].width, views.cameras[k].height, views.masks[k])
+        (
+            views.cameras[k].K,
+            X_WC[k],
+            views.cameras[k].width,
+            views.cameras[k].height,
+            views.masks[k],
+        )
         for k in ks
     ]
 
@@ -235,16 +249,19 @@ def reconstruct_recording(
         measured = measures(views, paired, result, settings, voxel)
     report = _report(scan, views, paired, volume, table, result, measured, settings, voxel)
     with staged_folder(out, RECONSTRUCTION_MARKER) as staging:
-        exports = prepare_exports(result.meshes, MeshExportConfig())
+        exports = prepare_exports(result.meshes, settings.mesh_export, settings.primary_surface)
         paths = save_outputs(result, staging, settings.mesh_formats, exports)
         report["outputs"] = {name: p.name for name, p in paths.items()}
         report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
         report["reconstruct_s"] = time.perf_counter() - t0
+        report["self_checks"] = self_check_record(report)
         atomic_write_text(staging / "report.json", json.dumps(report, indent=2) + "\n")
         write_recording_summary(report, staging)
         details = summary(result)
         # The marker last: a folder without it is not a result.
-        atomic_write_text(staging / RECONSTRUCTION_MARKER, yaml_text({"recording": True, **details}))
+        atomic_write_text(
+            staging / RECONSTRUCTION_MARKER, yaml_text({"recording": True, **details})
+        )
     return RecordingRun(result, report, Path(out))
 
 
@@ -290,6 +307,7 @@ def _report(scan, views, paired, volume, table, result, measured, settings, voxe
         },
         "voxel_size_m": voxel,
         "captures_used": len(views.indices),
+        "captures_skipped": [],
         "pairs": pairs,
         "pairs_refined": sum(p["pose_refined"] for p in pairs),
         "fused_points": len(result.fused.points_W),
@@ -350,6 +368,45 @@ def write_recording_summary(report: dict, out: Path) -> Path:
     return path
 
 
-def require_recording(scan: SavedScan) -> None:
-    if scan.recording is None:
-        raise ScannerError(f"{scan.root}: not an imported recording")
+def reconstruct_recording_with(scan: SavedScan, options) -> RecordingRun:
+    """`scanner reconstruct` of a recording with the command's options (ReconstructOptions):
+    --config is a recording's settings file (RecordingProcessing), --calibration does not apply
+    (the recording carries its cameras), the rest as for a scan."""
+    from scanner.configs.flags import for_flag
+    from scanner.configs.typed_yaml import load_yaml_file
+    from scanner.reconstruct.command import _mesh_export
+    from scanner.reconstruct.stages import free_reconstruction_dir
+    from scanner.scan_dir.results_folder import require_replaceable
+
+    if options.calibration is not None:
+        raise ScannerError(
+            f"--calibration: {scan.root} is an imported recording, whose views carry their own "
+            "cameras and poses; give none"
+        )
+    settings = (
+        load_yaml_file(RecordingProcessing, options.config)
+        if options.config is not None
+        else RecordingProcessing()
+    )
+    rec = settings.reconstruction
+    if options.no_icp:
+        rec = replace(rec, icp=replace(rec.icp, enabled=False))
+    if options.no_handeye:
+        rec = replace(rec, handeye=replace(rec.handeye, enabled=False))
+    settings = replace(
+        settings, reconstruction=rec, mesh_export=_mesh_export(settings.mesh_export, options)
+    )
+    if options.formats is not None:
+        formats = tuple("." + f.strip().lstrip(".").lower() for f in options.formats.split(","))
+        settings = for_flag("--formats", lambda: replace(settings, mesh_formats=formats))
+    if options.masks is not None:
+        settings = replace(settings, masks=options.masks)
+    if options.volume is not None:
+        x, y, z, r = options.volume
+        settings = for_flag(
+            "--volume", lambda: replace(settings, volume_centre_m=(x, y, z), volume_radius_m=r)
+        )
+    out = options.out or free_reconstruction_dir(scan.root)
+    if options.out is not None:
+        require_replaceable(options.out, RECONSTRUCTION_MARKER, options.force, "reconstruction")
+    return reconstruct_recording(scan, settings, out)

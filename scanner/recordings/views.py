@@ -36,9 +36,6 @@ from scanner.scan_dir.manifest import SavedScan
 
 log = logging.getLogger("scanner.recordings")
 
-# The masks' hull is carved inside a sphere this many times the common view's: an object may
-# reach beyond what every view holds whole, and a cell no view sees outside its mask stays.
-HULL_SEARCH_SCALE = 2.0
 # A used mask keeps the points whose pixel lies within this many pixels of it: hand-drawn
 # outlines are off by a pixel or two, and a point on the rim must not be cut by that.
 MASK_MARGIN_PX = 3
@@ -96,10 +93,7 @@ def working_volume(views: RecordedViews, settings: RecordingProcessing) -> Worki
     used = [k for k, m in enumerate(views.masks) if m is not None and mask_used(settings, k)]
     if not used:
         return common
-    search = WorkingVolume(common.centre_W, HULL_SEARCH_SCALE * common.radius_m, "common view")
-    return volume_from_masks(
-        [cameras[k] for k in used], [views.masks[k] for k in used], search
-    )
+    return volume_from_masks([cameras[k] for k in used], [views.masks[k] for k in used], common)
 
 
 def footprint_m(views: RecordedViews, volume: WorkingVolume, downscale: float) -> float:
@@ -186,9 +180,7 @@ def paired_clouds(
     out = []
     for k, (pair, (cloud, _)) in enumerate(zip(pairs, done, strict=True)):
         i = pair.reference
-        out.append(
-            ViewCloud(k, cloud.points_C, cloud.colors, views.X_WF[i], cloud.depth, float(k))
-        )
+        out.append(ViewCloud(k, cloud.points_C, cloud.colors, views.X_WF[i], cloud.depth, float(k)))
         log.info(
             "pair %d-%d: %d points, epipolar %.2f px%s",
             views.indices[i],
@@ -197,6 +189,4 @@ def paired_clouds(
             cloud.pose.after.median_px,
             " (pose refined)" if cloud.pose.refined else "",
         )
-    return PairedClouds(
-        pairs, tuple(c for c, _ in done), tuple(out), tuple(s for _, s in done)
-    )
+    return PairedClouds(pairs, tuple(c for c, _ in done), tuple(out), tuple(s for _, s in done))
