@@ -34,7 +34,7 @@ What it does, and nothing more (a peer the product must beat, not a second produ
 Options: --data DIR (DTU scan folder), --downscale N (images and masks shrunk N times), --views
 (comma-separated indices; all by default), --out DIR (writes peer_cloud.ply, peer_even.ply,
 peer_odd.ply). Prints one JSON line; progress on stderr. `seconds`: the peer's own time (pairs,
-merge), not the measures.
+merge); `measure_seconds`: the measures, the halves' own merges included.
 """
 
 from __future__ import annotations
@@ -282,10 +282,10 @@ def main() -> None:
         )
     cloud = merged(per_pair)
     seconds = time.perf_counter() - start
-    even = merged([p for (i, _), p in zip(pairs, per_pair) if views[i].index % 2 == 0])
-    odd = merged([p for (i, _), p in zip(pairs, per_pair) if views[i].index % 2 == 1])
 
     measures_start = time.perf_counter()
+    even = merged([p for (i, _), p in zip(pairs, per_pair) if views[i].index % 2 == 0])
+    odd = merged([p for (i, _), p in zip(pairs, per_pair) if views[i].index % 2 == 1])
     silhouette = cloud_silhouette_agreement(
         cloud,
         [(v.K, v.X_WC, v.grey.shape[1], v.grey.shape[0], v.mask) for v in views],
