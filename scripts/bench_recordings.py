@@ -40,12 +40,13 @@ GOALS = {
 
 
 def ours(scan_dir: Path, out: Path, masks: str, downscale: float) -> dict:
-    from scanner.reconstruct.command import ReconstructOptions, reconstruct_one
+    from scanner.commands.reconstruct import reconstruct_saved
+    from scanner.reconstruct.command import ReconstructOptions
 
     settings = out.parent / f"settings-{masks}.yaml"
     settings.write_text(f"two_view:\n  downscale: {downscale}\n")
     t0 = time.perf_counter()
-    run = reconstruct_one(scan_dir, ReconstructOptions(config=settings, masks=masks, out=out))
+    run = reconstruct_saved(scan_dir, ReconstructOptions(config=settings, masks=masks, out=out))
     r = run.report
     return {
         "wall_s": round(time.perf_counter() - t0, 1),

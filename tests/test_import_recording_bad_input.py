@@ -186,14 +186,17 @@ def test_scale_and_format_options_are_checked(tmp_path, capfd):
         assert not out.exists()
 
 
-def test_commands_for_scans_of_the_cell_refuse_an_imported_recording(tmp_path, capfd):
+def test_resume_refuses_an_imported_recording_and_unpaired_views_are_one_line(tmp_path, capfd):
     folder, _, _ = plain_recording(tmp_path, depth=False)
     out = tmp_path / "scan"
     assert scanner(capfd, "import-recording", folder, "--out", out).returncode == 0
-    for command in (["reconstruct", out], ["scan", "--resume", out]):
-        r = scanner(capfd, *command)
-        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
-        assert "is an imported recording (plain, sensor mono)" in r.stderr
+    r = scanner(capfd, "scan", "--resume", out)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "is an imported recording (plain, sensor mono)" in r.stderr
+    # Reconstructed as a recording: these views stand 40 deg apart, too far to pair.
+    r = scanner(capfd, "reconstruct", out)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "pairing: view 0 has no partner within the limits" in r.stderr
     assert sorted(p.name for p in out.iterdir()) == ["captures", "scan.yaml"]
 
 

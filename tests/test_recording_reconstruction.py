@@ -11,7 +11,8 @@ import pytest
 
 from reconstruction.common.errors import ScannerError
 from scanner.commands.main import main
-from scanner.reconstruct.command import ReconstructOptions, reconstruct_one
+from scanner.commands.reconstruct import reconstruct_saved
+from scanner.reconstruct.command import ReconstructOptions
 from tests.recording_files import dtu_small_folder
 
 VIEWS = 8
@@ -31,7 +32,7 @@ def dtu_scan(tmp_path_factory):
 
 def _run(dtu_scan, masks: str, out):
     settings = dtu_scan.parent / "settings.yaml"
-    return reconstruct_one(dtu_scan, ReconstructOptions(config=settings, masks=masks, out=out))
+    return reconstruct_saved(dtu_scan, ReconstructOptions(config=settings, masks=masks, out=out))
 
 
 @pytest.fixture(scope="module")
@@ -97,9 +98,9 @@ def test_recording_options_are_refused_where_they_do_not_apply(
     dtu_scan, tiny_scan, tmp_path, capfd
 ):
     with pytest.raises(ScannerError, match="--calibration: .* imported recording"):
-        reconstruct_one(dtu_scan, ReconstructOptions(calibration=tmp_path / "c.yaml"))
+        reconstruct_saved(dtu_scan, ReconstructOptions(calibration=tmp_path / "c.yaml"))
     with pytest.raises(ScannerError, match="--masks: only for an imported recording"):
-        reconstruct_one(tiny_scan.scan_dir, ReconstructOptions(masks="even"))
+        reconstruct_saved(tiny_scan.scan_dir, ReconstructOptions(masks="even"))
     capfd.readouterr()
     out = tmp_path / "r"
     code = main(

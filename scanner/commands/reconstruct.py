@@ -157,8 +157,22 @@ def add_merge_parser(sub) -> None:
     )
 
 
+def reconstruct_saved(scan_dir, options):
+    """One saved scan directory reconstructed as what it is: a scan of this product's cell, or
+    an imported recording of one camera (pairs of its views make the clouds)."""
+    from scanner.reconstruct.command import reconstruct_one
+    from scanner.scan_dir.manifest import open_scan
+
+    scan = open_scan(scan_dir)
+    if scan.recording is not None:
+        from scanner.recordings.reconstruct import reconstruct_recording_with
+
+        return reconstruct_recording_with(scan, options)
+    return reconstruct_one(scan_dir, options)
+
+
 def run_reconstruct_command(args: argparse.Namespace) -> int:
-    from scanner.reconstruct.command import ReconstructOptions, reconstruct_one, summary_lines
+    from scanner.reconstruct.command import ReconstructOptions, summary_lines
 
     dirs = args.scan_dirs
     if len(dirs) > 1 and args.out is not None:
@@ -180,7 +194,7 @@ def run_reconstruct_command(args: argparse.Namespace) -> int:
     )
     if len(dirs) > 1 or args.ray_address is not None or args.workers is not None:
         return _reconstruct_batch(dirs, options, args)
-    run = reconstruct_one(dirs[0], options)
+    run = reconstruct_saved(dirs[0], options)
     for line in summary_lines(run.report):
         print(line)
     _warn_handeye(run.report)
@@ -198,7 +212,7 @@ def _reconstruct_batch(dirs: list[Path], options, args: argparse.Namespace) -> i
     import os
 
     from scanner.reconstruct.batch import run_batch
-    from scanner.reconstruct.command import reconstruct_one, summary_lines
+    from scanner.reconstruct.command import summary_lines
     from scanner.reports.self_checks import self_check_failures
 
     def done(outcome) -> None:
@@ -214,7 +228,7 @@ def _reconstruct_batch(dirs: list[Path], options, args: argparse.Namespace) -> i
             print(f"{outcome.scan_dir}: FAILED: {outcome.error}", flush=True)
 
     workers = args.workers or os.cpu_count() or 1
-    outcomes = run_batch(dirs, reconstruct_one, options, workers, args.ray_address, done)
+    outcomes = run_batch(dirs, reconstruct_saved, options, workers, args.ray_address, done)
     failed = [o for o in outcomes if not o.ok]
     doubtful = [o for o in outcomes if o.ok and self_check_failures(o.report)]
     print(

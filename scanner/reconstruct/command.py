@@ -42,15 +42,13 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
         load_processing_config,
         run_reconstruct,
     )
-    from scanner.scan_dir.manifest import open_scan
+    from scanner.scan_dir.manifest import open_scan, require_robot_scan
     from scanner.scan_dir.results_folder import require_replaceable
 
     scan = open_scan(scan_dir)
-    if scan.recording is not None:
-        # One camera, its pose per view: pairs of its views make the clouds.
-        from scanner.recordings.reconstruct import reconstruct_recording_with
-
-        return reconstruct_recording_with(scan, options)
+    # An imported recording (one camera, its pose per view) has its own reconstruction
+    # (scanner.recordings), which the command chooses.
+    require_robot_scan(scan, "this reconstruction")
     if options.masks is not None or options.volume is not None:
         flag = "--masks" if options.masks is not None else "--volume"
         raise ScannerError(f"{flag}: only for an imported recording; {scan_dir} is a scan")
