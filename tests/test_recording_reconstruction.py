@@ -63,6 +63,8 @@ def test_the_model_agrees_with_the_masks_it_did_not_use(even_masks):
     assert json.loads((folder / "report.json").read_text())["split_half"] == h
     for name in ("fused_cloud.ply", "mesh_poisson.ply", "summary.md", "reconstruction.yaml"):
         assert (folder / name).stat().st_size > 0, name
+    # The 3D page, as for a scan: the model and the views' frustums (no cell, no arm).
+    assert r["model_page"] == "model.html" and (folder / "model.html").stat().st_size > 10_000
     summary = (folder / "summary.md").read_text()
     assert "views whose masks the model did not use" in summary
     assert "Hand-eye correction: not run" in summary

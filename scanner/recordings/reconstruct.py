@@ -219,9 +219,10 @@ def _split_half(paired: PairedClouds, result, settings: RecordingProcessing, vox
 
 
 def reconstruct_recording(
-    scan: SavedScan, settings: RecordingProcessing, out: Path
+    scan: SavedScan, settings: RecordingProcessing, out: Path, page: bool = True
 ) -> RecordingRun:
-    """The model of an imported recording in `out` (a results folder, written whole)."""
+    """The model of an imported recording in `out` (a results folder, written whole), and its
+    3D page (`page`)."""
     t0 = time.perf_counter()
     timer = StageTimer()
     info = scan.recording
@@ -262,7 +263,45 @@ def reconstruct_recording(
         atomic_write_text(
             staging / RECONSTRUCTION_MARKER, yaml_text({"recording": True, **details})
         )
-    return RecordingRun(result, report, Path(out))
+    run = RecordingRun(result, report, Path(out))
+    return add_recording_page(run, views, settings) if page else run
+
+
+def recording_scene(result: ReconstructionResult, views: RecordedViews, settings):
+    """model.html's scene of a recording's model: the mesh coloured by its distance to the
+    fused measurements (as a scan without truth), the views' frustums; no cell, no arm."""
+    from scanner.reconstruct.model_scene import colouring, headline_mesh
+    from scanner.reports.model_page_layers import DisplayMesh, ModelScene, ViewFrustum, decimated
+
+    mesh = headline_mesh(result, settings.primary_surface)
+    if mesh is None:
+        return None
+    vertices, triangles = decimated(mesh.vertices, mesh.triangles)
+    colours = colouring(vertices, result, None, None)
+    return ModelScene(
+        mesh=DisplayMesh(vertices, triangles, colours.values_m),
+        scale_m=colours.scale_m,
+        colour_meaning=f"{mesh.name} mesh: {colours.meaning}",
+        signed=colours.signed,
+        frustums=tuple(ViewFrustum(X) for X in views.X_WC),
+        camera=views.cameras[0],
+    )
+
+
+def add_recording_page(run: RecordingRun, views: RecordedViews, settings) -> RecordingRun:
+    """model.html beside the finished results, linked from report.json (a failure to write it
+    is a warning: the results are complete without it)."""
+    from scanner.reconstruct.model_scene import write_reconstruction_page
+    from scanner.reports.model_page import PAGE_NAME
+
+    seconds = write_reconstruction_page(
+        run.results_dir, lambda: recording_scene(run.result, views, settings)
+    )
+    if seconds is None:
+        return run
+    report = {**run.report, "model_page": PAGE_NAME, "model_page_s": seconds}
+    atomic_write_text(run.results_dir / "report.json", json.dumps(report, indent=2) + "\n")
+    return RecordingRun(run.result, report, run.results_dir)
 
 
 def _report(scan, views, paired, volume, table, result, measured, settings, voxel) -> dict:
