@@ -105,15 +105,15 @@ def table_of(
     own mask (a masked cloud holds no table)."""
     unmasked = [
         k
-        for k, p in enumerate(paired.pairs)
-        if views.masks[p.reference] is None or not mask_used(settings, p.reference)
+        for k, i in enumerate(paired.references)
+        if views.masks[i] is None or not mask_used(settings, i)
     ]
     if not unmasked:
         return None
     rng = np.random.default_rng(0)
     samples = []
     for k in unmasked:
-        cloud, X_WC = paired.clouds[k], views.X_WC[paired.pairs[k].reference]
+        cloud, X_WC = paired.clouds[k], views.X_WC[paired.references[k]]
         n = len(cloud.points_C)
         pick = rng.choice(n, min(n, TABLE_SAMPLES_PER_PAIR), replace=False) if n else []
         samples.append(transform_points(X_WC, cloud.points_C[pick]))
@@ -164,9 +164,9 @@ def measures(
     final = {v.index: v.X_WC for v in result.views}
     # Each view's final camera pose: that of the pair it is the reference of.
     X_WC = list(views.X_WC)
-    for k, pair in enumerate(paired.pairs):
+    for k, i in enumerate(paired.references):
         if k in final:
-            X_WC[pair.reference] = final[k]
+            X_WC[i] = final[k]
     with_mask = [k for k, m in enumerate(views.masks) if m is not None]
     held_out = [k for k in with_mask if not mask_used(settings, k)]
     out: dict = {}
@@ -200,7 +200,7 @@ def _split_half(paired: PairedClouds, result, settings: RecordingProcessing, vox
         view = by_view.get(cloud.index)
         if view is None:
             continue
-        clouds, poses = halves[paired.pairs[cloud.index].reference % 2]
+        clouds, poses = halves[paired.references[cloud.index] % 2]
         clouds.append(cloud)
         poses.append(view.X_WC)
     if not halves[0][0] or not halves[1][0]:
@@ -319,6 +319,7 @@ def _report(scan, views, paired, volume, table, result, measured, settings, voxe
             "seconds": round(s, 2),
         }
         for p, c, s in zip(paired.pairs, paired.clouds, paired.seconds, strict=True)
+        if p is not None
     ]
     masks = sum(m is not None for m in views.masks)
     return {
@@ -349,6 +350,7 @@ def _report(scan, views, paired, volume, table, result, measured, settings, voxe
         "captures_skipped": [],
         "pairs": pairs,
         "pairs_refined": sum(p["pose_refined"] for p in pairs),
+        "depth_views": sum(p is None for p in paired.pairs),
         "fused_points": len(result.fused.points_W),
         **measured,
     }
@@ -362,7 +364,13 @@ def write_recording_summary(report: dict, out: Path) -> Path:
         f"# Model of the recording {report['object']}",
         "",
         f"- {rec['views']} views ({rec['format']}, {rec['metres_per_unit']:g} m per unit), "
-        f"{len(report['pairs'])} pairs of one camera's views; masks used: {rec['masks_used']}.",
+        f"{len(report['pairs'])} pairs of one camera's views"
+        + (
+            f", {report['depth_views']} views from their own depth images"
+            if report["depth_views"]
+            else ""
+        )
+        + f"; masks used: {rec['masks_used']}.",
         f"- Hand-eye correction: {rec['handeye']}.",
         f"- Working volume from {volume['source']}: radius {1e3 * volume['radius_m']:.1f} mm.",
         "- Table: "

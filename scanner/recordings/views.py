@@ -20,6 +20,8 @@ import numpy as np
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import invert, transform_points
+from reconstruction.depth.camera_model import RgbdCamera
+from reconstruction.depth.cloud import DepthCloud, view_rgbd_cloud
 from reconstruction.registration.views import ViewCloud
 from reconstruction.stereo.camera_model import PinholeCamera
 from reconstruction.two_view.cloud import PairCloud, pair_cloud
@@ -53,6 +55,9 @@ class RecordedViews:
     cameras: tuple[PinholeCamera, ...]
     X_WC: tuple[np.ndarray, ...]
     X_WF: tuple[np.ndarray, ...]
+    # Depth counts on the image's grid and their unit (m per count), where the recording has them.
+    depths: tuple[np.ndarray | None, ...]
+    depth_scales_m: tuple[float, ...]
 
     def posed(self, k: int) -> PosedCamera:
         c = self.cameras[k]
@@ -62,7 +67,7 @@ class RecordedViews:
 def read_recorded_views(scan: SavedScan) -> RecordedViews:
     """Every capture of an imported recording; a damaged one is an error naming it (a
     recording is imported whole and checked, so damage is not a view to skip)."""
-    indices, images, masks, cameras, X_WC, X_WF = [], [], [], [], [], []
+    indices, images, masks, cameras, X_WC, X_WF, depths, scales = ([] for _ in range(8))
     for index in scan.store.captured_indices():
         capture = scan.store.read_capture(index)
         if capture.sensor != "mono":
@@ -73,9 +78,11 @@ def read_recorded_views(scan: SavedScan) -> RecordedViews:
         cameras.append(capture.camera)
         X_WC.append(capture.X_WC)
         X_WF.append(capture.X_WF)
+        depths.append(capture.depth)
+        scales.append(float(capture.depth_scale_m))
     if len(indices) < 2:
         raise ScannerError(f"{scan.root}: {len(indices)} captures; two views make the first pair")
-    return RecordedViews(*map(tuple, (indices, images, masks, cameras, X_WC, X_WF)))
+    return RecordedViews(*map(tuple, (indices, images, masks, cameras, X_WC, X_WF, depths, scales)))
 
 
 def mask_used(settings: RecordingProcessing, k: int) -> bool:
@@ -138,28 +145,60 @@ def hull_keep(views: RecordedViews, settings: RecordingProcessing):
 
 @dataclass(frozen=True, eq=False)
 class PairedClouds:
-    """The pairs, their clouds (in order), and the views made of them for the pipeline: view
-    k is pair k, with its reference view's flange pose."""
+    """The views' clouds in order, each with its reference view (whose frame C it is in) and
+    its pair (None: the view's own depth image), and the views made of them for the pipeline:
+    view k is cloud k, with its reference view's flange pose."""
 
-    pairs: tuple[ViewPair, ...]
-    clouds: tuple[PairCloud, ...]
+    references: tuple[int, ...]
+    pairs: tuple[ViewPair | None, ...]
+    clouds: tuple[PairCloud | DepthCloud, ...]
     views: tuple[ViewCloud, ...]
     seconds: tuple[float, ...]
+
+
+def depth_cloud(
+    views: RecordedViews, k: int, volume: WorkingVolume, mask: np.ndarray | None
+) -> DepthCloud:
+    """View k's own depth image as a cloud (the RGB-D path: a depth camera on the image's
+    grid), the depths the working volume spans, inside the mask when one is used."""
+    camera = views.cameras[k]
+    device = RgbdCamera(camera, camera, np.eye(4), views.depth_scales_m[k], 1e-3, 1e3)
+    cloud = view_rgbd_cloud(
+        device, views.depths[k], views.images[k], views.X_WC[k], volume.centre_W, volume.radius_m
+    )
+    if mask is None:
+        return cloud
+    u, v = cloud.pixels_D[:, 0].astype(int), cloud.pixels_D[:, 1].astype(int)
+    keep = mask[v, u]
+    return DepthCloud(cloud.points_C[keep], cloud.colors[keep], cloud.pixels_D[keep], cloud.depth)
 
 
 def paired_clouds(
     views: RecordedViews, volume: WorkingVolume, settings: RecordingProcessing
 ) -> PairedClouds:
-    """Every view's pair cloud, two pairs at a time per core (OpenCV's matching and feature
-    search release the GIL)."""
+    """Every view's cloud: its depth image where it has one, else its pair's, two at a time per
+    core (OpenCV's matching and feature search release the GIL)."""
     import time
 
-    pairs = pair_views(list(views.X_WC), volume.centre_W, settings.pairing)
+    n = len(views.indices)
+    stereo = [k for k in range(n) if views.depths[k] is None]
+    pairs = ()
+    if stereo:
+        found = pair_views(list(views.X_WC), volume.centre_W, settings.pairing)
+        pairs = tuple(p for p in found if p.reference in stereo)
+    jobs = sorted(
+        [(k, None) for k in range(n) if views.depths[k] is not None]
+        + [(p.reference, p) for p in pairs],
+        key=lambda job: job[0],
+    )
 
-    def one(pair: ViewPair) -> tuple[PairCloud, float]:
+    def one(job: tuple[int, ViewPair | None]):
         t0 = time.perf_counter()
-        i, j = pair.reference, pair.other
+        i, pair = job
         mask = views.masks[i] if views.masks[i] is not None and mask_used(settings, i) else None
+        if pair is None:
+            return depth_cloud(views, i, volume, mask), time.perf_counter() - t0
+        j = pair.other
         cloud = pair_cloud(
             views.images[i],
             views.images[j],
@@ -176,17 +215,23 @@ def paired_clouds(
         return cloud, time.perf_counter() - t0
 
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        done = list(pool.map(one, pairs))
+        done = list(pool.map(one, jobs))
     out = []
-    for k, (pair, (cloud, _)) in enumerate(zip(pairs, done, strict=True)):
-        i = pair.reference
+    for k, ((i, pair), (cloud, _)) in enumerate(zip(jobs, done, strict=True)):
         out.append(ViewCloud(k, cloud.points_C, cloud.colors, views.X_WF[i], cloud.depth, float(k)))
-        log.info(
-            "pair %d-%d: %d points, epipolar %.2f px%s",
-            views.indices[i],
-            views.indices[pair.other],
-            len(cloud.points_C),
-            cloud.pose.after.median_px,
-            " (pose refined)" if cloud.pose.refined else "",
-        )
-    return PairedClouds(pairs, tuple(c for c, _ in done), tuple(out), tuple(s for _, s in done))
+        if pair is not None:
+            log.info(
+                "pair %d-%d: %d points, epipolar %.2f px%s",
+                views.indices[i],
+                views.indices[pair.other],
+                len(cloud.points_C),
+                cloud.pose.after.median_px,
+                " (pose refined)" if cloud.pose.refined else "",
+            )
+    return PairedClouds(
+        tuple(i for i, _ in jobs),
+        tuple(p for _, p in jobs),
+        tuple(c for c, _ in done),
+        tuple(out),
+        tuple(s for _, s in done),
+    )
