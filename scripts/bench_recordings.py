@@ -132,7 +132,9 @@ def main() -> None:
     peer_wall = None
     if not args.no_peer:
         line["peer"] = peer(args.data, args.peer_downscale, work / "peer")
-        peer_wall = line["peer"]["wall_s"]
+        # The peer's matching and merging alone (its measures, run on 20 M points at full
+        # resolution, take longer again): ours is timed with its measures, the harder bound.
+        peer_wall = line["peer"]["seconds"]
     line["goals_met"] = goals(line["even_masks"], peer_wall)
     line["results"] = str(work)
     print(json.dumps(line))
