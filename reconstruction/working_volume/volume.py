@@ -137,7 +137,6 @@ def volume_from_masks(
     lo, hi = hull.min(axis=0), hull.max(axis=0)
     centre = (lo + hi) / 2
     radius = float(np.linalg.norm(hull - centre, axis=1).max()) + math.sqrt(3) * step + margin_m
-    if radius >= search.radius_m:
-        # Views from one side leave the hull open in depth: it is no tighter than the search.
-        return search
+    # Views from one side leave the hull open in depth, cut only by the search sphere: its
+    # sphere is then hardly smaller, but centred on the object, not on the axes' common point.
     return WorkingVolume(centre, radius, "masks")
