@@ -48,6 +48,7 @@ LONGEST_FIRST = (
     "test_checked_before_work.py",  # 22
     "test_cell_monitor.py",  # 21
     "test_reconstruction_handeye.py",  # 20
+    "test_recording_reconstruction.py",  # 20
 )
 
 
