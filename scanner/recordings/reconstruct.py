@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -24,12 +23,6 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.common.stage_timer import StageTimer
 from reconstruction.common.transforms import transform_points
 from reconstruction.common.yaml_files import yaml_text
-from reconstruction.evaluation.silhouette import (
-    SilhouetteAgreement,
-    cloud_silhouette_agreement,
-    silhouette_agreement,
-)
-from reconstruction.evaluation.split_half import SplitHalf, split_half_agreement
 from reconstruction.outputs import save_outputs, summary
 from reconstruction.pipeline import (
     ReconstructionConfig,
@@ -39,9 +32,11 @@ from reconstruction.pipeline import (
 )
 from reconstruction.registration.filtering import RegionOfInterest
 from reconstruction.surfaces.export import prepare_exports
-from reconstruction.surfaces.fused import fuse_clouds
 from reconstruction.working_volume.table import TablePlane, above_table, find_table
 from reconstruction.working_volume.volume import WorkingVolume
+from scanner.recordings.measures import measures
+from scanner.recordings.page import add_recording_page
+from scanner.recordings.report import recording_report, write_recording_summary
 from scanner.recordings.settings import RecordingProcessing
 from scanner.recordings.views import (
     PairedClouds,
@@ -138,86 +133,6 @@ def _keep_hook(views, settings, table: TablePlane | None):
     return keep
 
 
-def _masked_views(views: RecordedViews, ks, X_WC):
-    return [
-        (
-            views.cameras[k].K,
-            X_WC[k],
-            views.cameras[k].width,
-            views.cameras[k].height,
-            views.masks[k],
-        )
-        for k in ks
-    ]
-
-
-def measures(
-    views: RecordedViews,
-    paired: PairedClouds,
-    result: ReconstructionResult,
-    settings: RecordingProcessing,
-    voxel_m: float,
-) -> dict:
-    """Silhouettes on the views whose masks the model did not use (all views with masks when
-    it used them all: then not held out, and said so), and the split-half agreement of the
-    clouds of even and odd reference views at their final poses."""
-    final = {v.index: v.X_WC for v in result.views}
-    # Each view's final camera pose: that of the pair it is the reference of.
-    X_WC = list(views.X_WC)
-    for k, i in enumerate(paired.references):
-        if k in final:
-            X_WC[i] = final[k]
-    with_mask = [k for k, m in enumerate(views.masks) if m is not None]
-    held_out = [k for k in with_mask if not mask_used(settings, k)]
-    out: dict = {}
-    scored = held_out or with_mask
-    if scored:
-        masked = _masked_views(views, scored, X_WC)
-        mesh = result.meshes[settings.primary_surface]
-        on_mesh = silhouette_agreement(mesh.vertices, mesh.triangles, masked)
-        on_cloud = cloud_silhouette_agreement(result.fused.points_W, masked, voxel_m)
-        out["silhouette"] = {
-            "views": [views.indices[k] for k in scored],
-            "held_out": bool(held_out),
-            "mesh": _silhouette_record(on_mesh, views, scored),
-            "fused_cloud": _silhouette_record(on_cloud, views, scored),
-        }
-    out["split_half"] = _split_half(paired, result, settings, voxel_m)
-    return out
-
-
-def _silhouette_record(a: SilhouetteAgreement, views: RecordedViews, scored) -> dict:
-    record = a.summary()
-    record["iou_worst_view"] = views.indices[scored[record["iou_worst_view"]]]
-    record["coverage_worst_view"] = views.indices[scored[record["coverage_worst_view"]]]
-    return record
-
-
-def _split_half(paired: PairedClouds, result, settings: RecordingProcessing, voxel_m: float):
-    by_view = {v.index: v for v in result.views}
-    halves = {0: ([], []), 1: ([], [])}
-    for cloud in result.clouds:
-        view = by_view.get(cloud.index)
-        if view is None:
-            continue
-        clouds, poses = halves[paired.references[cloud.index] % 2]
-        clouds.append(cloud)
-        poses.append(view.X_WC)
-    if not halves[0][0] or not halves[1][0]:
-        return None
-    even = fuse_clouds(*halves[0], voxel_m)
-    odd = fuse_clouds(*halves[1], voxel_m)
-    s: SplitHalf = split_half_agreement(
-        even.points_W, odd.points_W, settings.split_half_common_voxels * voxel_m
-    )
-    return {
-        "median_mm": round(1e3 * s.median_m, 4) if math.isfinite(s.median_m) else None,
-        "p90_mm": round(1e3 * s.p90_m, 4) if math.isfinite(s.p90_m) else None,
-        "common_share": round(s.common_share, 4),
-        "common_radius_mm": round(1e3 * settings.split_half_common_voxels * voxel_m, 4),
-    }
-
-
 def reconstruct_recording(
     scan: SavedScan, settings: RecordingProcessing, out: Path, page: bool = True
 ) -> RecordingRun:
@@ -248,7 +163,7 @@ def reconstruct_recording(
         result = reconstruct_views(inputs)
     with timer("measures"):
         measured = measures(views, paired, result, settings, voxel)
-    report = _report(scan, views, paired, volume, table, result, measured, settings, voxel)
+    report = recording_report(scan, views, paired, volume, table, result, measured, settings, voxel)
     with staged_folder(out, RECONSTRUCTION_MARKER) as staging:
         exports = prepare_exports(result.meshes, settings.mesh_export, settings.primary_surface)
         paths = save_outputs(result, staging, settings.mesh_formats, exports)
@@ -263,156 +178,9 @@ def reconstruct_recording(
         atomic_write_text(
             staging / RECONSTRUCTION_MARKER, yaml_text({"recording": True, **details})
         )
-    run = RecordingRun(result, report, Path(out))
-    return add_recording_page(run, views, settings) if page else run
-
-
-def recording_scene(result: ReconstructionResult, views: RecordedViews, settings):
-    """model.html's scene of a recording's model: the mesh coloured by its distance to the
-    fused measurements (as a scan without truth), the views' frustums; no cell, no arm."""
-    from scanner.reconstruct.model_scene import colouring, headline_mesh
-    from scanner.reports.model_page_layers import DisplayMesh, ModelScene, ViewFrustum, decimated
-
-    mesh = headline_mesh(result, settings.primary_surface)
-    if mesh is None:
-        return None
-    vertices, triangles = decimated(mesh.vertices, mesh.triangles)
-    colours = colouring(vertices, result, None, None)
-    return ModelScene(
-        mesh=DisplayMesh(vertices, triangles, colours.values_m),
-        scale_m=colours.scale_m,
-        colour_meaning=f"{mesh.name} mesh: {colours.meaning}",
-        signed=colours.signed,
-        frustums=tuple(ViewFrustum(X) for X in views.X_WC),
-        camera=views.cameras[0],
-    )
-
-
-def add_recording_page(run: RecordingRun, views: RecordedViews, settings) -> RecordingRun:
-    """model.html beside the finished results, linked from report.json (a failure to write it
-    is a warning: the results are complete without it)."""
-    from scanner.reconstruct.model_scene import write_reconstruction_page
-    from scanner.reports.model_page import PAGE_NAME
-
-    seconds = write_reconstruction_page(
-        run.results_dir, lambda: recording_scene(run.result, views, settings)
-    )
-    if seconds is None:
-        return run
-    report = {**run.report, "model_page": PAGE_NAME, "model_page_s": seconds}
-    atomic_write_text(run.results_dir / "report.json", json.dumps(report, indent=2) + "\n")
-    return RecordingRun(run.result, report, run.results_dir)
-
-
-def _report(scan, views, paired, volume, table, result, measured, settings, voxel) -> dict:
-    info = scan.recording
-    pairs = [
-        {
-            "reference": views.indices[p.reference],
-            "other": views.indices[p.other],
-            "baseline_mm": round(1e3 * p.baseline_m, 2),
-            "angle_deg": round(math.degrees(p.angle_rad), 2),
-            "points": len(c.points_C),
-            "epipolar_median_px_before": round(c.pose.before.median_px, 3),
-            "epipolar_median_px": round(c.pose.after.median_px, 3),
-            "pose_refined": c.pose.refined,
-            "seconds": round(s, 2),
-        }
-        for p, c, s in zip(paired.pairs, paired.clouds, paired.seconds, strict=True)
-        if p is not None
-    ]
-    masks = sum(m is not None for m in views.masks)
-    return {
-        "object": scan.manifest.get("object"),
-        "status": "complete",
-        "sensor": "one camera, stereo from pairs of its views",
-        "recording": {
-            **info.to_dict(),
-            "masks_used": settings.masks if masks else "none (the recording has none)",
-            "handeye": "not run: the recording gave camera poses"
-            if info.camera_poses_given
-            else ("run" if settings.reconstruction.handeye.enabled else "off"),
-        },
-        "working_volume": {
-            "source": volume.source,
-            "centre_m": [round(float(c), 6) for c in volume.centre_W],
-            "radius_m": round(float(volume.radius_m), 6),
-        },
-        "table": None
-        if table is None
-        else {
-            "normal_W": [round(float(c), 6) for c in table.normal_W],
-            "offset_m": round(table.offset_m, 6),
-            "share": round(table.share, 4),
-        },
-        "voxel_size_m": voxel,
-        "captures_used": len(views.indices),
-        "captures_skipped": [],
-        "pairs": pairs,
-        "pairs_refined": sum(p["pose_refined"] for p in pairs),
-        "depth_views": sum(p is None for p in paired.pairs),
-        "fused_points": len(result.fused.points_W),
-        **measured,
-    }
-
-
-def write_recording_summary(report: dict, out: Path) -> Path:
-    """summary.md: what was done with the recording and how well the model agrees with it."""
-    rec = report["recording"]
-    volume = report["working_volume"]
-    lines = [
-        f"# Model of the recording {report['object']}",
-        "",
-        f"- {rec['views']} views ({rec['format']}, {rec['metres_per_unit']:g} m per unit), "
-        f"{len(report['pairs'])} pairs of one camera's views"
-        + (
-            f", {report['depth_views']} views from their own depth images"
-            if report["depth_views"]
-            else ""
-        )
-        + f"; masks used: {rec['masks_used']}.",
-        f"- Hand-eye correction: {rec['handeye']}.",
-        f"- Working volume from {volume['source']}: radius {1e3 * volume['radius_m']:.1f} mm.",
-        "- Table: "
-        + (
-            "none found in the data."
-            if report["table"] is None
-            else f"found (a plane holding {100 * report['table']['share']:.0f} % of the "
-            "points), removed."
-        ),
-        f"- Pairs whose relative pose was refined from the images: {report['pairs_refined']}.",
-        "",
-    ]
-    s = report.get("silhouette")
-    if s:
-        where = (
-            "views whose masks the model did not use"
-            if s["held_out"]
-            else "every view (their masks were used: not held out)"
-        )
-        m, c = s["mesh"], s["fused_cloud"]
-        lines += [
-            f"## Silhouettes ({len(s['views'])} {where})",
-            "",
-            f"- Model: IoU {m['iou_median']:.3f} median, {m['iou_worst']:.3f} worst "
-            f"(view {m['iou_worst_view']}); mask pixels covered {m['coverage_median']:.3f} "
-            f"median, {m['coverage_worst']:.3f} worst.",
-            f"- Fused cloud: IoU {c['iou_median']:.3f} median, {c['iou_worst']:.3f} worst; "
-            f"covered {c['coverage_median']:.3f} median.",
-            "",
-        ]
-    h = report.get("split_half")
-    if h:
-        lines += [
-            "## Split-half agreement (fused points of even vs odd reference views)",
-            "",
-            f"- {h['median_mm']} mm median, {h['p90_mm']} mm p90 on the common part "
-            f"({100 * h['common_share']:.1f} % of the points within {h['common_radius_mm']} mm).",
-            "",
-        ]
-    path = Path(out) / "summary.md"
-    atomic_write_text(path, "\n".join(lines))
-    return path
+    if page:
+        report = add_recording_page(result, report, Path(out), views, settings)
+    return RecordingRun(result, report, Path(out))
 
 
 def reconstruct_recording_with(scan: SavedScan, options) -> RecordingRun:
