@@ -37,10 +37,13 @@ def measures(
     result: ReconstructionResult,
     settings: RecordingProcessing,
     voxel_m: float,
+    source_footprint_m: float,
 ) -> dict:
     """Silhouettes on the views whose masks the model did not use (all views with masks when
     it used them all: then not held out, and said so), and the split-half agreement of the
-    clouds of even and odd reference views at their final poses."""
+    clouds of even and odd reference views at their final poses. voxel_m: the model's point
+    spacing (the cloud's splats); source_footprint_m: a source pixel's size on the object,
+    which the split-half grid and common radius are set in."""
     final = {v.index: v.X_WC for v in result.views}
     # Each view's final camera pose: that of the pair it is the reference of.
     X_WC = list(views.X_WC)
@@ -62,7 +65,7 @@ def measures(
             "mesh": _silhouette_record(on_mesh, views, scored),
             "fused_cloud": _silhouette_record(on_cloud, views, scored),
         }
-    out["split_half"] = _split_half(paired, result, settings, voxel_m)
+    out["split_half"] = _split_half(paired, result, settings, source_footprint_m)
     return out
 
 
@@ -73,7 +76,7 @@ def _silhouette_record(a: SilhouetteAgreement, views: RecordedViews, scored) -> 
     return record
 
 
-def _split_half(paired: PairedClouds, result, settings: RecordingProcessing, voxel_m: float):
+def _split_half(paired: PairedClouds, result, settings: RecordingProcessing, footprint_m: float):
     by_view = {v.index: v for v in result.views}
     halves = {0: ([], []), 1: ([], [])}
     for cloud in result.clouds:
@@ -85,14 +88,15 @@ def _split_half(paired: PairedClouds, result, settings: RecordingProcessing, vox
         poses.append(view.X_WC)
     if not halves[0][0] or not halves[1][0]:
         return None
+    voxel_m = settings.split_half_voxel_footprints * footprint_m
+    common_m = settings.split_half_common_footprints * footprint_m
     even = fuse_clouds(*halves[0], voxel_m)
     odd = fuse_clouds(*halves[1], voxel_m)
-    s: SplitHalf = split_half_agreement(
-        even.points_W, odd.points_W, settings.split_half_common_voxels * voxel_m
-    )
+    s: SplitHalf = split_half_agreement(even.points_W, odd.points_W, common_m)
     return {
         "median_mm": round(1e3 * s.median_m, 4) if math.isfinite(s.median_m) else None,
         "p90_mm": round(1e3 * s.p90_m, 4) if math.isfinite(s.p90_m) else None,
         "common_share": round(s.common_share, 4),
-        "common_radius_mm": round(1e3 * settings.split_half_common_voxels * voxel_m, 4),
+        "common_radius_mm": round(1e3 * common_m, 4),
+        "voxel_mm": round(1e3 * voxel_m, 4),
     }

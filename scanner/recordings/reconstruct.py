@@ -162,7 +162,8 @@ def reconstruct_recording(
     with timer("reconstruct"):
         result = reconstruct_views(inputs)
     with timer("measures"):
-        measured = measures(views, paired, result, settings, voxel)
+        source = footprint_m(views, volume, 1.0)
+        measured = measures(views, paired, result, settings, voxel, source)
     report = recording_report(scan, views, paired, volume, table, result, measured, settings, voxel)
     with staged_folder(out, RECONSTRUCTION_MARKER) as staging:
         exports = prepare_exports(result.meshes, settings.mesh_export, settings.primary_surface)
