@@ -68,6 +68,10 @@ def test_the_model_agrees_with_the_masks_it_did_not_use(even_masks):
     summary = (folder / "summary.md").read_text()
     assert "views whose masks the model did not use" in summary
     assert "Hand-eye correction: not run" in summary
+    from scanner.reconstruct.command import summary_lines
+
+    printed = "\n".join(summary_lines(r))
+    assert "silhouettes on 4 held-out views: IoU" in printed and "split-half agreement" in printed
 
 
 def test_the_working_volume_comes_from_the_masks_or_the_cameras(even_masks, no_masks):

@@ -134,6 +134,19 @@ def summary_lines(report: dict) -> list[str]:
     line = metrics_line(r)
     if line:
         lines.append(line)
+    s, h = r.get("silhouette"), r.get("split_half")
+    if s:  # a recording: no truth, its own measures
+        where = "held-out views" if s["held_out"] else "views whose masks it used"
+        m = s["mesh"]
+        lines.append(
+            f"silhouettes on {len(s['views'])} {where}: IoU {m['iou_median']:.3f} median, "
+            f"{m['iou_worst']:.3f} worst; mask covered {m['coverage_median']:.3f} median"
+        )
+    if h:
+        lines.append(
+            f"split-half agreement: {h['median_mm']:.3f} mm median, {h['p90_mm']:.3f} mm p90 on "
+            f"{100 * h['common_share']:.1f} % of the points"
+        )
     return lines
 
 
