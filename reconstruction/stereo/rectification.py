@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
-from reconstruction.stereo.camera_model import StereoCamera
+from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,9 +55,26 @@ def compute_rectification(model: StereoCamera, alpha: float = 0.0) -> Rectificat
         flags=cv2.CALIB_ZERO_DISPARITY,
         alpha=alpha,
     )
-    source_px_left = cv2.initUndistortRectifyMap(L.K, L.distortion, R1, P1, size, cv2.CV_32FC2)[0]
+    return rectification_of(L, Rc, R1, R2, P1, P2, Q, size)
+
+
+def rectification_of(
+    left: PinholeCamera,
+    right: PinholeCamera,
+    R1: np.ndarray,
+    R2: np.ndarray,
+    P1: np.ndarray,
+    P2: np.ndarray,
+    Q: np.ndarray,
+    size: tuple[int, int],
+) -> Rectification:
+    """The record of rectifying rotations and projections (cv2.stereoRectify's, or a pair's own
+    grid), with its remap tables onto the rectified grid of `size` (width, height)."""
+    source_px_left = cv2.initUndistortRectifyMap(
+        left.K, left.distortion, R1, P1, size, cv2.CV_32FC2
+    )[0]
     maps_left = cv2.convertMaps(source_px_left, None, cv2.CV_16SC2)
-    maps_right = cv2.initUndistortRectifyMap(Rc.K, Rc.distortion, R2, P2, size, cv2.CV_16SC2)
+    maps_right = cv2.initUndistortRectifyMap(right.K, right.distortion, R2, P2, size, cv2.CV_16SC2)
     for a in (R1, R2, P1, P2, Q, source_px_left, *maps_left, *maps_right):
         a.setflags(write=False)
     return Rectification(R1, R2, P1, P2, Q, maps_left, maps_right, size, source_px_left)

@@ -37,7 +37,7 @@ import numpy as np
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import invert, make_pose
 from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera
-from reconstruction.stereo.rectification import Rectification
+from reconstruction.stereo.rectification import Rectification, rectification_of
 
 # Skew dropped by a quarter turn moves a pixel by skew * y (y = (v - cy) / fy, under 0.5 in
 # usual lenses): at most 0.005 px at this bound.
@@ -211,13 +211,7 @@ def pair_rectification(rig: PairRig, z_min_m: float, max_growth: float = 3.0) ->
     P2 = P1.copy()
     P2[0, 3] = f * Tx
     Q = np.array([[1, 0, 0, -cx], [0, 1, 0, -cy], [0, 0, 0, f], [0, 0, -1 / Tx, 0]], float)
-    size = (width, height)
-    source_px_left = cv2.initUndistortRectifyMap(L.K, L.distortion, R1, P1, size, cv2.CV_32FC2)[0]
-    maps_left = cv2.convertMaps(source_px_left, None, cv2.CV_16SC2)
-    maps_right = cv2.initUndistortRectifyMap(R.K, R.distortion, R2, P2, size, cv2.CV_16SC2)
-    for a in (R1, R2, P1, P2, Q, source_px_left, *maps_left, *maps_right):
-        a.setflags(write=False)
-    return Rectification(R1, R2, P1, P2, Q, maps_left, maps_right, size, source_px_left)
+    return rectification_of(L, R, R1, R2, P1, P2, Q, (width, height))
 
 
 def rectify_views(
