@@ -43,6 +43,7 @@ from reconstruction.handeye.rounds import (
 )
 from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment
 from reconstruction.hangings.merge import PlacedHangings, left_out, place_hangings
+from reconstruction.hangings.turntable import KnownTurns
 from reconstruction.registration.all_views import EdgeReport
 from reconstruction.registration.filtering import (
     FilterConfig,
@@ -224,7 +225,9 @@ class ReconstructionInputs:
         are this run's first views with these clouds, X_FC and ICP settings.
     leave_out_unaligned: a hanging whose alignment fails its verification is left out of the
         model (its views in no result but the coverage per hanging, its alignment recorded
-        unverified) instead of refusing the whole result."""
+        unverified) instead of refusing the whole result.
+    turns: the passes' known turns (a turntable's angles and axis), the starting guess of
+        each pass's alignment (None: the object was re-hung, the turn is unknown)."""
 
     views: Sequence[ViewCloud]
     X_FC_nominal: np.ndarray
@@ -236,6 +239,7 @@ class ReconstructionInputs:
     fixtures: Sequence[FixtureLine] = ()
     arriving: ArrivingPairs | None = None
     leave_out_unaligned: bool = False
+    turns: KnownTurns | None = None
 
 
 def reconstruct_views(
@@ -341,6 +345,7 @@ def _place_hangings(
             inputs.fixtures,
             inputs.remove_points,
             inputs.leave_out_unaligned,
+            inputs.turns,
         )
     return _Placed(clouds, placed)
 

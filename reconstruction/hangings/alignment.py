@@ -106,6 +106,8 @@ class PassAlignment:
     ambiguity: float  # runner-up score / best score (0: no distinct runner-up)
     hypotheses: int
     failures: tuple[str, ...]  # the checks that failed (empty: verified)
+    # The known turn (a turntable's) refined and verified without the search for hypotheses.
+    from_known_turn: bool = False
 
     @property
     def verified(self) -> bool:
@@ -305,9 +307,13 @@ def align_pass(
     config: AlignmentConfig = AlignmentConfig(),
     colors: np.ndarray | None = None,
     reference_colors: np.ndarray | None = None,
+    start: np.ndarray | None = None,
 ) -> PassAlignment:
     """T that puts `points` (a pass's fused cloud, colours (N, 3) uint8) onto `reference`,
-    with its verification. Without colours the texture check is left out."""
+    with its verification. Without colours the texture check is left out. `start`: a known
+    guess of T (a turntable's turn): refined and verified first, the search for hypotheses
+    runs only when it does not verify. A known turn needs no ambiguity check: the turntable,
+    not the shape, tells the symmetric orientations apart."""
     from scipy.spatial import cKDTree
 
     source, src_f = prepared_features(points, config.voxel_m)
@@ -319,6 +325,27 @@ def align_pass(
     sample = np.asarray(source.points)
     centre = sample.mean(axis=0)
     candidates, refined_from = [], []
+
+    def evaluate(T: np.ndarray) -> tuple:
+        fit = _fit(
+            transform_points(T, points),
+            grey,
+            tree,
+            ref_grey if textured else np.zeros(len(reference)),
+            config.inlier_distance_m,
+        )
+        if not textured:
+            fit = _Fit(fit.overlap, fit.inlier_rms_m, 1.0)
+        violation = free_space_violation(
+            transform_points(T, sample), seen, config.free_space_margin_m
+        )
+        return _score(fit, violation), T, fit, violation
+
+    if start is not None:
+        known = evaluate(_refine(source, target, np.asarray(start, float), config))
+        if not _failures(known[2], known[3], 0.0, textured, config):
+            return _alignment(hanging, known[1], known[2], known[3], 0.0, 1, (), True)
+        candidates.append(known)
     starts = feature_hypotheses(source, target, src_f, tgt_f, config)
     textured_score = None
     if textured:
@@ -341,19 +368,7 @@ def align_pass(
         T = _refine(source, target, T0, config) if same is None else same[1]
         same = same or next((c for c in candidates if _same_pose(T, c[1], centre, SAME_FIT)), None)
         if same is None:
-            fit = _fit(
-                transform_points(T, points),
-                grey,
-                tree,
-                ref_grey if textured else np.zeros(len(reference)),
-                config.inlier_distance_m,
-            )
-            if not textured:
-                fit = _Fit(fit.overlap, fit.inlier_rms_m, 1.0)
-            violation = free_space_violation(
-                transform_points(T, sample), seen, config.free_space_margin_m
-            )
-            same = (_score(fit, violation), T, fit, violation)
+            same = evaluate(T)
         refined_from.append((T0, same))
         candidates.append(same)
 
@@ -367,7 +382,6 @@ def align_pass(
         consider(T0)
     candidates.sort(key=lambda c: -c[0])
     best_score, T, fit, violation = candidates[0]
-    overlap, rms = fit.overlap, fit.inlier_rms_m
     runner_up = next(
         (
             c[0]
@@ -377,6 +391,15 @@ def align_pass(
         0.0,
     )
     ambiguity = runner_up / best_score if best_score > 0 else 1.0
+    failures = _failures(fit, violation, ambiguity, textured, config)
+    return _alignment(hanging, T, fit, violation, ambiguity, len(candidates), failures, False)
+
+
+def _failures(
+    fit: _Fit, violation: float, ambiguity: float, textured: bool, config: AlignmentConfig
+) -> tuple[str, ...]:
+    """The verification checks a fit fails (empty: verified)."""
+    overlap, rms = fit.overlap, fit.inlier_rms_m
     failures = []
     if overlap < config.min_overlap:
         failures.append(f"overlap {overlap:.2f} (need >= {config.min_overlap:g})")
@@ -399,19 +422,24 @@ def align_pass(
             f"ambiguous: another orientation fits {100 * ambiguity:.0f} % as well (a symmetric "
             "shape; scan a further hanging)"
         )
+    return tuple(failures)
+
+
+def _alignment(hanging, T, fit, violation, ambiguity, hypotheses, failures, known) -> PassAlignment:
     return PassAlignment(
         hanging,
         # Open3D's ICP sums in no fixed order: two runs end apart in the last bits, and the
         # Poisson octree of the merged hangings turns that into another mesh. On a 1e-9 grid
         # (rad, m) the same captures give the same pass transform, and so the same model.
         snapped(T, np.eye(4)),
-        overlap,
-        rms,
+        fit.overlap,
+        fit.inlier_rms_m,
         violation,
         fit.colour_agreement,
         ambiguity,
-        len(candidates),
+        hypotheses,
         tuple(failures),
+        known,
     )
 
 

@@ -20,6 +20,7 @@ import numpy as np
 from reconstruction.common.errors import RefusedResultError, ScannerError
 from reconstruction.common.transforms import invert, transform_points
 from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment, SeenSpace, align_pass
+from reconstruction.hangings.turntable import KnownTurns
 from reconstruction.registration.filtering import FilteredCloud, RemovePoints
 from reconstruction.registration.views import ViewCloud
 from reconstruction.surfaces.fixture import FixtureLine
@@ -49,11 +50,14 @@ def align_hangings(
     config: AlignmentConfig,
     voxel_m: float,
     leave_out: bool = False,
+    turns: KnownTurns | None = None,
 ) -> tuple[list[np.ndarray], tuple[PassAlignment, ...]]:
     """Camera poses of every view in the first hanging's frame, and each further hanging's
     alignment. One that does not verify raises RefusedResultError naming the failed checks;
     with `leave_out`, its views keep their own frame instead, it is no reference for the
-    hangings after it, and its alignment is returned unverified."""
+    hangings after it, and its alignment is returned unverified. `turns`: the passes' known
+    turns (a turntable's), each pass's starting guess, about the axis as the verified
+    alignments before it calibrate it."""
     X_WC = [np.asarray(X) for X in X_WC]
     first = list(groups[0])
     reference = fuse_clouds([clouds[k] for k in first], [X_WC[k] for k in first], voxel_m)
@@ -72,6 +76,7 @@ def align_hangings(
             config,
             fused.colors,
             np.vstack(colors),
+            start=None if turns is None else turns.start(hanging, verified_turns(alignments)),
         )
         alignments.append(alignment)
         if not alignment.verified:
@@ -89,6 +94,11 @@ def align_hangings(
         points.append(transform_points(alignment.T, fused.points_W))
         colors.append(fused.colors)
     return X_WC, tuple(alignments)
+
+
+def verified_turns(alignments: Sequence[PassAlignment]) -> list[tuple[int, np.ndarray]]:
+    """(pass, T) of the alignments that verified: what calibrates a turntable's axis."""
+    return [(a.hanging, a.T) for a in alignments if a.verified]
 
 
 def left_out(alignments: Sequence[PassAlignment]) -> tuple[int, ...]:
@@ -129,13 +139,16 @@ def place_hangings(
     fixtures: Sequence[FixtureLine] = (),
     remove_points: RemovePoints | None = None,
     leave_out: bool = False,
+    turns: KnownTurns | None = None,
 ) -> PlacedHangings:
     """`align_hangings` (when there are several hangings), with what moves with the poses:
     each hanging's rod line (`fixtures`: one for all hangings, or one per hanging, in its own
     frame) and the caller's point filter (`remove_points`, in each view's own frame)."""
     alignments: tuple[PassAlignment, ...] = ()
     if len(groups) > 1:
-        X_WC, alignments = align_hangings(views, clouds, X_WC, groups, config, voxel_m, leave_out)
+        X_WC, alignments = align_hangings(
+            views, clouds, X_WC, groups, config, voxel_m, leave_out, turns
+        )
     T_of = to_first_frame(alignments)
     moved = []
     if fixtures:

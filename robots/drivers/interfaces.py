@@ -98,6 +98,18 @@ class DepthCameraDriver(abc.ABC):
         """Grab a depth + colour pair; raise CaptureError when the device could not deliver."""
 
 
+class TurntableDriver(abc.ABC):
+    """A motorised turntable under the object: turn to an absolute angle, report the angle."""
+
+    @abc.abstractmethod
+    def rotate_to(self, angle_rad: float) -> None:
+        """Turn to `angle_rad` (about the vertical, right hand) and return once at rest."""
+
+    @abc.abstractmethod
+    def angle_rad(self) -> float:
+        """The angle the turntable's encoder reports now (rad)."""
+
+
 class CaptureError(RuntimeError):
     """The camera failed to deliver an image pair (the decision maker retries)."""
 
@@ -112,6 +124,9 @@ class Hardware:
     # Multi-hanging scans: ask the operator to re-hang the object (the message says which
     # hanging and how) and return once it hangs still; None: this cell cannot re-hang.
     request_rehang: Callable[[str], None] | None = None
+    # Turntable scans (presentation: turntable): the turntable the object stands on; None:
+    # this cell has none.
+    turntable: TurntableDriver | None = None
 
 
 def load_hardware(spec: str, config: object) -> Hardware:
@@ -133,6 +148,7 @@ def load_hardware(spec: str, config: object) -> Hardware:
         isinstance(hardware, Hardware)
         and isinstance(hardware.robot, RobotDriver)
         and isinstance(hardware.camera, StereoCameraDriver)
+        and (hardware.turntable is None or isinstance(hardware.turntable, TurntableDriver))
     ):
         raise ScannerError(
             f"driver: {spec} returned {type(hardware).__name__}; "

@@ -75,11 +75,8 @@ def make_geometry_filter(
     workcell: Workcell, margin_m: float = 0.01
 ) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     """keep(points_W (N, 3), q (6,)) -> bool mask of points farther than margin_m from the robot,
-    tool, rod and cell primitives at configuration q."""
+    tool, rod (or turntable) and cell primitives at configuration q."""
     plant, sg = workcell.plant, workcell.scene_graph
-    context = workcell.diagram.CreateDefaultContext()
-    plant_context = plant.GetMyContextFromRoot(context)
-    sg_context = sg.GetMyContextFromRoot(context)
     inspector = sg.model_inspector()
     object_frame = plant.GetBodyFrameIdOrThrow(plant.GetBodyByName(OBJECT_BODY).index())
     primitives = []
@@ -89,6 +86,8 @@ def make_geometry_filter(
         if record is None or is_keep_out:
             continue
         primitives.append(_Primitive(record[0], record[1], gid))
+    if workcell.presentation != "hanging":
+        return _keep_points(workcell, primitives, margin_m)
     # The rod hangs down the vertical through the scan centre to wherever the (unknown) object
     # begins: remove that whole line, not just the part above the planner's keep-out sphere.
     c = workcell.config.object_center_m
@@ -96,7 +95,17 @@ def make_geometry_filter(
     X_WR = np.eye(4)
     X_WR[:3, 3] = (c[0], c[1], c[2] + length / 2)
     primitives.append(_Primitive("cylinder", (workcell.config.rod_radius_m, length), X_WG=X_WR))
+    return _keep_points(workcell, primitives, margin_m)
 
+
+def _keep_points(
+    workcell: Workcell, primitives: list[_Primitive], margin_m: float
+) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """keep(points_W, q) over these primitives (posed by Drake at q, or fixed)."""
+    plant, sg = workcell.plant, workcell.scene_graph
+    context = workcell.diagram.CreateDefaultContext()
+    plant_context = plant.GetMyContextFromRoot(context)
+    sg_context = sg.GetMyContextFromRoot(context)
     # Views are filtered on several threads (the scan's view stream): one context, so one
     # configuration at a time.
     lock = threading.Lock()

@@ -127,6 +127,7 @@ class Workcell:
     config: WorkcellConfig
     has_renderer: bool
     has_object: bool = True
+    presentation: str = "hanging"  # what holds the object: the rod, or the turntable
 
     @property
     def plant(self) -> MultibodyPlant:
@@ -251,10 +252,28 @@ def keep_out_radius_m(config: WorkcellConfig) -> float:
     return config.object_size_m * math.sqrt(3) / 2
 
 
+# What each presentation puts into the cell to hold the object (robots/models/turntable.py).
+CELL_PRESENTATIONS = ("hanging", "turntable")
+
+
+def check_presentation(presentation: str) -> None:
+    """Refuse a presentation the cell has no model for (the error names the ones it has)."""
+    if presentation not in CELL_PRESENTATIONS:
+        raise ScannerError(
+            f"presentation: the cell has no model for {presentation!r}; it has "
+            f"{', '.join(CELL_PRESENTATIONS)}"
+        )
+
+
 def _add_object(
-    plant: MultibodyPlant, config: WorkcellConfig, obj: PlacedObject | None, X_WO: np.ndarray
+    plant: MultibodyPlant,
+    config: WorkcellConfig,
+    obj: PlacedObject | None,
+    X_WO: np.ndarray,
+    presentation: str = "hanging",
 ) -> None:
-    """The object (a welded body, so it has its own render label) and the rod it hangs from.
+    """The object (a welded body, so it has its own render label) and the rod it hangs from
+    (on a turntable: the disc and post it stands on).
 
     Without a mesh (the planner's view: the object is unknown) the object is a collision-only
     keep-out sphere around the scan centre and the rod hangs down to the sphere's top.
@@ -283,6 +302,11 @@ def _add_object(
         plant.RegisterCollisionGeometry(
             body, RigidTransform(), Sphere(radius), "object_keep_out", _friction()
         )
+    if presentation == "turntable":
+        from robots.models.turntable import add_turntable
+
+        add_turntable(plant, config)
+        return
     p_WA = X_WO @ p_OA
     length = config.rod_top_z_m - p_WA[2]
     # The rod is vertical in W; O may be yawed, so express the rod's pose through W.
@@ -305,6 +329,7 @@ def build_workcell(
     include_object: bool = True,
     X_WO: np.ndarray | None = None,
     meshcat_prefix: str = "visualizer",
+    presentation: str = "hanging",
 ) -> Workcell:
     """Robot, camera tool (frames at the given X_FC), cell boxes and object in one RobotDiagram.
 
@@ -316,8 +341,10 @@ def build_workcell(
     keep-out sphere and its rod out of the cell (calibration needs a clear view of the board).
     `X_WO`: the object's pose (default the configuration's; a re-hung object differs).
     `meshcat_prefix`: where in meshcat's scene tree the geometry goes (Drake's default puts it
-    under /drake/visualizer; a path starting with / is absolute).
+    under /drake/visualizer; a path starting with / is absolute). `presentation`: what holds
+    the object, "hanging" (the rod) or "turntable" (robots/models/turntable.py).
     """
+    check_presentation(presentation)
     builder = RobotDiagramBuilder(time_step=0.0)
     plant = builder.plant()
     if renderer:
@@ -329,7 +356,7 @@ def build_workcell(
     add_camera_frames(plant, arm, instance, X_FC, X_CR)
     _add_cell(plant, config)
     if include_object:
-        _add_object(plant, config, obj, config.X_WO if X_WO is None else X_WO)
+        _add_object(plant, config, obj, config.X_WO if X_WO is None else X_WO, presentation)
     for extra in extras:
         extra(plant, instance)
     plant.Finalize()
@@ -343,4 +370,4 @@ def build_workcell(
             meshcat,
             MeshcatVisualizerParams(prefix=meshcat_prefix),
         )
-    return Workcell(builder.Build(), instance, config, renderer, include_object)
+    return Workcell(builder.Build(), instance, config, renderer, include_object, presentation)

@@ -16,6 +16,7 @@ from robots.cache import cache_dir
 from robots.drivers.interfaces import RobotDriver
 from robots.models import camera_tool
 from robots.models.objects import ObjectMesh, mesh_fingerprint, resolve_object, write_textured_obj
+from robots.models.turntable import standing_pose
 from robots.models.workcell import Workcell, WorkcellConfig, build_workcell, placed_object
 from robots.simulation.operator import hung_pose, rehung_pose
 from robots.simulation.robot import SimulatedRobot
@@ -58,23 +59,27 @@ def create_simulation(
     hanging: int = 0,
     X_WO: np.ndarray | None = None,
     rgbd: RgbdCamera | None = None,
+    presentation: str = "hanging",
 ) -> Simulation:
     """Build the true world for `object_spec` (built-in name or mesh path) and its error model.
 
     `object_spec=None` builds the cell without an object (calibration); `extras` are passed to
     `build_workcell` (e.g. a calibration board). `rgbd`: the tool carries this depth camera
     (X_FC_nominal then places its colour camera) instead of the stereo pair. `arm` starts at
-    `q0` (None: its home).
+    `q0` (None: its home). `presentation`: the object hangs from the rod ("hanging") or stands
+    on the turntable ("turntable", at its zero angle unless `X_WO` is given).
     """
     stereo = stereo or default_stereo_camera()
     if X_FC_nominal is None:
         X_FC_nominal = camera_tool.nominal_X_FC(stereo.baseline_m)
     mesh = None if object_spec is None else resolve_object(object_spec, cell.object_size_m)
+    if X_WO is None and presentation == "turntable" and mesh is not None:
+        X_WO = standing_pose(cell, mesh.vertices)
     if X_WO is None:  # else the pose the operator hung it in (a resumed scan's truth file)
         X_WO = hung_pose(cell.X_WO, error_model.seed, hanging)
     truth = sample_truth(error_model, X_FC_nominal, stereo, X_WO, rgbd, arm.joint_count)
     sim_robot = SimulatedRobot(arm, truth.joint_offsets_rad, arm.home_q if q0 is None else q0)
-    return _assemble(cell, mesh, truth, sim_robot, meshcat, extras)
+    return _assemble(cell, mesh, truth, sim_robot, meshcat, extras, presentation)
 
 
 def _assemble(
@@ -84,6 +89,7 @@ def _assemble(
     sim_robot: SimulatedRobot,
     meshcat=None,
     extras: Sequence[Callable] = (),
+    presentation: str = "hanging",
 ) -> Simulation:
     obj = None
     if mesh is not None:
@@ -100,6 +106,7 @@ def _assemble(
         extras=extras,
         include_object=mesh is not None,
         X_WO=truth.X_WO,
+        presentation=presentation,
     )
     camera = simulated_camera(workcell, truth, sim_robot.true_joint_positions)
     return Simulation(workcell, truth, sim_robot, camera, mesh)
@@ -133,3 +140,11 @@ def rehang(
     cell = sim.workcell.config
     X_WO = rehung_pose(sim.truth.X_WO, cell.X_WO, sim.truth.seed, hanging, operator, up_W)
     return _assemble(cell, sim.object_mesh, replace(sim.truth, X_WO=X_WO), sim.robot, meshcat)
+
+
+def moved_object(sim: Simulation, X_WO: np.ndarray, meshcat=None) -> Simulation:
+    """The same cell, robot (where it stands) and errors with the object at `X_WO` (a
+    turntable turned it)."""
+    truth = replace(sim.truth, X_WO=np.asarray(X_WO, float))
+    cell, presentation = sim.workcell.config, sim.workcell.presentation
+    return _assemble(cell, sim.object_mesh, truth, sim.robot, meshcat, (), presentation)

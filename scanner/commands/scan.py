@@ -98,6 +98,15 @@ def add_scan_parser(sub) -> None:
     )
     add_config_option(
         scan,
+        "--presentation",
+        choices=("hanging", "table", "turntable"),
+        help="how the object is offered and turned between passes: hanging (from the rod, "
+        "re-hung by a person) or turntable (turned by the scanner; --hangings is then its "
+        "number of passes) (default %(config_default)s)",
+        config=ConfigDefault(SCAN_CONFIG, "presentation"),
+    )
+    add_config_option(
+        scan,
         "--operator",
         choices=("instructed", "random"),
         help="simulation: who re-hangs the object; instructed follows the scanner's "
@@ -214,6 +223,7 @@ def run_scan_command(args: argparse.Namespace) -> int:
         calibration_file=str(args.calibration) if args.calibration else None,
         driver=args.driver,
         hangings=args.hangings,
+        presentation=args.presentation,
         max_extra_views=args.max_extra_views,
         monitor=args.monitor or None,
         intruder_start_s=args.intruder,

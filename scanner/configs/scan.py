@@ -91,6 +91,8 @@ class ProcessingConfig:
 
 MAX_HANGINGS = 6
 AUTO = "auto"
+# How the object is offered and turned between passes (scanner/presentation/).
+PRESENTATIONS = ("hanging", "turntable", "table")
 
 
 @dataclass(frozen=True)
@@ -130,6 +132,10 @@ class ScanConfig:
     # as it computes, until `coverage_target` is reached, `max_hangings` are done, or a
     # hanging adds less than `min_hanging_gain` of the surface. A number forces that many.
     hangings: int | str = AUTO
+    # How the object is presented: "hanging" (from the rod, re-hung by a person between
+    # passes) or "turntable" (standing on a motorised turntable the scanner turns between
+    # passes; `hangings` is then its number of passes). The cell must have a model of it.
+    presentation: str = "hanging"
     coverage_target: float = fraction(0.97)
     max_hangings: int = integer(4, maximum=MAX_HANGINGS)
     min_hanging_gain: float = fraction(0.01)
@@ -151,6 +157,11 @@ class ScanConfig:
         if not isinstance(self.robot, str) or not self.robot.strip():
             raise ScannerError(
                 f"robot: expected 'rx60' or the path of an arm file, got {self.robot!r}"
+            )
+        if self.presentation not in PRESENTATIONS:
+            raise ScannerError(
+                f"presentation: expected one of {', '.join(PRESENTATIONS)}, got "
+                f"{self.presentation!r}"
             )
         if self.sensor not in SENSORS:
             raise ScannerError(f"sensor: expected one of {', '.join(SENSORS)}, got {self.sensor!r}")
@@ -221,6 +232,7 @@ def with_overrides(
     calibration_file: str | None = None,
     driver: str | None = None,
     hangings: int | str | None = None,
+    presentation: str | None = None,
     max_extra_views: int | None = None,
     monitor: bool | None = None,
     intruder_start_s: tuple[float, ...] | None = None,
@@ -268,6 +280,8 @@ def with_overrides(
         config = replace(config, views=views_config)
     if hangings is not None:
         config = for_flag("--hangings", lambda: replace(config, hangings=hangings))
+    if presentation is not None:
+        config = for_flag("--presentation", lambda: replace(config, presentation=presentation))
     if monitor:
         config = replace(config, monitor=replace(config.monitor, enabled=True))
     if intruder_start_s is not None:

@@ -102,6 +102,8 @@ def hangings_report(result, views: Gathered, to_first) -> dict:
                 ambiguity=a.ambiguity,
                 verified=a.verified,
             )
+            if a.from_known_turn:  # a turntable's turn, verified without the search
+                record["known_turn_verified"] = True
             if not a.verified:
                 record.update(left_out=True, failures=list(a.failures))
             if surface is not None:

@@ -156,15 +156,27 @@ def geometry_filter(
     from robots.models.point_filter import make_geometry_filter
     from robots.models.workcell import build_workcell
 
-    cell = build_workcell(config.cell, None, X_FC, stereo.X_CR, arm_of(config.robot))
+    cell = build_workcell(
+        config.cell,
+        None,
+        X_FC,
+        stereo.X_CR,
+        arm_of(config.robot),
+        presentation=config.presentation,
+    )
     keep = make_geometry_filter(cell, margin_m)
     return lambda points_W, index: keep(points_W, joints[index])
 
 
 def fixture_line(config: ScanConfig) -> FixtureLine:
     """The rod the object hangs from: the vertical above the scan centre (in every hanging:
-    the cell holds the rod, the operator hangs the object anew from it)."""
+    the cell holds the rod, the operator hangs the object anew from it); on a turntable, the
+    post below it."""
     cell = config.cell
+    if config.presentation == "turntable":
+        from robots.models.turntable import POST_RADIUS_M
+
+        return FixtureLine(tuple(cell.object_center_m), (0.0, 0.0, -1.0), POST_RADIUS_M)
     return FixtureLine(tuple(cell.object_center_m), (0.0, 0.0, 1.0), cell.rod_radius_m)
 
 

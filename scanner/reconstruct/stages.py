@@ -37,6 +37,7 @@ from reconstruction.surfaces.export import export_record, prepare_exports
 from reconstruction.surfaces.topology import mesh_quality
 from scanner.configs.scan import ProcessingConfig
 from scanner.configs.typed_yaml import load_yaml_file, to_dict
+from scanner.presentation.known_turns import known_turns, turntable_report
 from scanner.reconstruct.evaluation import (
     hangings_report,
     observed_samples,
@@ -283,6 +284,7 @@ def _reconstruct(
             fixtures=views.fixtures,
             arriving=arriving,
             leave_out_unaligned=len(scans) == 1,
+            turns=known_turns(first) if hangings and len(scans) == 1 else None,
         )
         result = reconstruct_views(inputs, on_stage)
 
@@ -316,6 +318,8 @@ def _reconstruct(
             report.update(_write_model(result, processing, staging, eyes))
             if hangings:
                 report.update(hangings_report(result, views, None))
+            if inputs.turns is not None:
+                report["turntable"] = turntable_report(inputs.turns, result.alignments)
             report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
             report["reconstruct_s"] = time.perf_counter() - t0
             merged = {**earlier, **report}

@@ -26,6 +26,7 @@ from reconstruction.registration.filtering import filter_views, o3d_cloud, refil
 from reconstruction.surfaces.fixture import without_fixture
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds
 from scanner.configs.scan import ScanConfig
+from scanner.presentation.known_turns import known_turns
 from scanner.reconstruct.scan_views import (
     capture_views,
     fixture_line,
@@ -168,6 +169,10 @@ class HangingAssessor:
             tuple(self.T[k] @ X for k, p in enumerate(reference) for X in p.X_WC),
         )
         q = self.passes[h]
+        # On a turntable the known turn starts the alignment, about the axis the verified
+        # turns before it calibrate.
+        turns = known_turns(self.scan, h + 1)
+        verified = [(k, self.T[k]) for k in range(1, h) if not self.failures[k]]
         a = align_pass(
             h,
             q.fused.points_W,
@@ -176,6 +181,7 @@ class HangingAssessor:
             self.scan.config.processing.reconstruction.alignment,
             q.fused.colors,
             ref_colors,
+            start=None if turns is None else turns.start(h, verified),
         )
         if a.failures:
             # The final reconstruction verifies again (and leaves the hanging out of the model);

@@ -1,6 +1,6 @@
-"""The capture part of a scan: the decision maker over each hanging's views in turn, the object
-re-hung in between (the simulator turns it; hardware asks the operator), next-best views after
-each hanging's planned ones, and the runs summed up."""
+"""The capture part of a scan: the decision maker over each hanging's (pass's) views in turn, the
+object presented anew in between (scanner/presentation: re-hung by the operator, or turned by the
+turntable), next-best views after each pass's planned ones, and the runs summed up."""
 
 from __future__ import annotations
 
@@ -17,13 +17,12 @@ from robots.simulation.truth import record_hung_pose
 from scanner.configs.scan import ScanConfig
 from scanner.monitor.cell_monitor import MonitorStoppedError
 from scanner.monitor.scan_monitor import ScanMonitor
+from scanner.presentation import presentation_for
 from scanner.reconstruct.scan_views import model_so_far
 from scanner.reconstruct.view_stream import ViewStream, with_stream
-from scanner.reports.rehang_picture import write_rehang_picture
 from scanner.scan.auto_hangings import HangingAssessor, decide
 from scanner.scan.decision import DecisionMaker, FixedViewList, RunSummary
 from scanner.scan.next_best_view import CoverageModel
-from scanner.scan.next_hanging import instruction, next_best_hanging
 from scanner.scan.viewpoints import planned_view
 from scanner.scan.world import ScanWorld, WatchedRobot, live_cloud, software_kinematics
 from scanner.scan_dir.captures import CaptureStore
@@ -78,6 +77,7 @@ class HangingRunner:
         self.abort_requested = False
         self.monitor = ScanMonitor(config.monitor) if config.monitor.enabled else None
         self.assessor: HangingAssessor | None = None
+        self.presentation = presentation_for(config, store)
 
     def request_abort(self) -> None:
         self.abort_requested = True
@@ -92,6 +92,7 @@ class HangingRunner:
         self.hangings = [list(h) for h in hangings]
         summaries = []
         hanging = first
+        self.world = self.presentation.begin(self.world, first)
         while hanging < len(self.hangings):
             if hanging > first and set(self.hangings[hanging]) <= set(
                 self.store.captured_indices()
@@ -124,14 +125,12 @@ class HangingRunner:
             # object hung before that hanging, which it no longer does.
             request = None
         with self.timer("rehang"):
-            self.world = self.world.rehang(
-                hanging, self.config.error_model.operator, request, self.viewer
-            )
+            self.world = self.presentation.present(self.world, hanging, request, self.viewer)
         if self.world.sim is not None:
             record_hung_pose(self.store.root / "truth.yaml", hanging, self.world.sim.truth.X_WO)
         again = {"rescanning": None} if "rescanning" in manifest else {}
         self.store.update_manifest(hanging=hanging, pending_rehang=None, **again)
-        log.info("re-hung the object for hanging %d", hanging + 1)
+        log.info("presented the object (%s) for pass %d", self.presentation.kind, hanging + 1)
 
     def _after_hanging(self, hanging: int) -> None:
         """Estimate what the hangings so far have seen; below the target, plan the next
@@ -167,24 +166,10 @@ class HangingRunner:
         self._add_hanging(hanging + 1, request, [*journal, entry])
 
     def _request(self, hanging: int, seen) -> dict | None:
-        """The instruction for pass `hanging`: the next-best turn, in words and a picture."""
-        centre = np.array(self.config.scan_center_m)
-        planned = self.hangings[0][: self._per_hanging()]
-        directions = np.array([v.direction for v in self.views if v.index in set(planned)])
-        choice = next_best_hanging(seen, centre, self.config.views.radius_m, directions)
-        if choice is None or choice.gain <= 0:
-            return None
-        # Beside the captures, not in results/: a reconstruction writes that folder anew.
-        name = f"rehang_{hanging + 1}.png"
-        picture = self.store.root / name
-        write_rehang_picture(seen, choice.up_W, choice.clamp_W, centre, hanging, picture)
-        return {
-            "up_W": [float(x) for x in choice.up_W],
-            "clamp_W": [float(x) for x in choice.clamp_W],
-            "expected_gain": choice.gain,
-            "words": instruction(choice, hanging, str(picture)),
-            "picture": name,
-        }
+        """The request for pass `hanging`: the next-best re-hang or turn (the presentation's)."""
+        planned = set(self.hangings[0][: self._per_hanging()])
+        directions = np.array([v.direction for v in self.views if v.index in planned])
+        return self.presentation.plan(hanging, seen, directions)
 
     def _per_hanging(self) -> int:
         return int(self.store.read_manifest().get("views_per_hanging", len(self.hangings[0])))

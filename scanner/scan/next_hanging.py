@@ -42,6 +42,40 @@ class HangingChoice:
     gain: float
 
 
+@dataclass(frozen=True, eq=False)
+class UnseenSight:
+    """Which of the closed model's unseen samples a camera would see from each of a fine grid
+    of directions about the centre (`sees`: grid x unseen samples), cast once; `total`: every
+    sample's count (the gains are shares of the whole model)."""
+
+    grid: np.ndarray
+    sees: np.ndarray
+    total: int
+
+    def gain(self, view_directions: np.ndarray, R: np.ndarray) -> float:
+        """The share of the model newly seen by a pass of these view directions (unit, from
+        the centre) after the object turned by R (3x3) about the centre; the cameras are looked
+        up at their nearest grid direction (8 deg apart at most, finer than the operator's own
+        error)."""
+        nearest = np.argmax((view_directions @ R) @ self.grid.T, axis=1)  # rows: R^T d
+        return float(self.sees[nearest].any(axis=0).sum() / self.total)
+
+
+def unseen_sight(
+    seen: SeenSurface, centre_W: Sequence[float], radius_m: float
+) -> UnseenSight | None:
+    """What the grid's cameras at `radius_m` from the centre would see of what is unseen; None
+    when nothing is unseen."""
+    unseen = ~seen.seen
+    if not unseen.any():
+        return None
+    c = np.asarray(centre_W, float)
+    subset = SurfaceSamples(seen.samples.points[unseen], seen.samples.normals[unseen])
+    grid = fibonacci_directions(GRID)
+    sees = np.array(list(visibility(subset, seen.surface, c + radius_m * grid)))
+    return UnseenSight(grid, sees, len(seen.seen))
+
+
 def next_best_hanging(
     seen: SeenSurface,
     centre_W: Sequence[float],
@@ -52,26 +86,17 @@ def next_best_hanging(
 ) -> HangingChoice | None:
     """The turn of the object whose next pass (the same view directions, unit, from the
     centre) newly sees the most of `seen`'s unseen samples; None when nothing is unseen."""
-    unseen = ~seen.seen
-    if not unseen.any():
+    sight = unseen_sight(seen, centre_W, radius_m)
+    if sight is None:
         return None
     c = np.asarray(centre_W, float)
     d = np.asarray(view_directions, float).reshape(-1, 3)
-    subset = SurfaceSamples(seen.samples.points[unseen], seen.samples.normals[unseen])
-    # What a camera would see from each of a fine grid of directions, cast once; a turned
-    # pass's cameras are looked up at their nearest grid direction (8 deg apart at most,
-    # finer than the operator's own error).
-    grid = fibonacci_directions(GRID)
-    sees = np.array(list(visibility(subset, seen.surface, c + radius_m * grid)))
-    total = len(seen.seen)
     best: HangingChoice | None = None
     for a in fibonacci_directions(candidates):
         R_up = rotation_between(a, UP)
         gain = 0.0
         for j in range(yaws):
-            R = rotation_about(UP, 2 * math.pi * j / yaws) @ R_up
-            nearest = np.argmax((d @ R) @ grid.T, axis=1)  # rows of d @ R: R^T d
-            gain += sees[nearest].any(axis=0).sum() / total / yaws
+            gain += sight.gain(d, rotation_about(UP, 2 * math.pi * j / yaws) @ R_up) / yaws
         if best is None or gain > best.gain:
             best = HangingChoice(a, _clamp_point(seen, a, c), float(gain))
     return best

@@ -58,6 +58,9 @@ def _write_truth(store: CaptureStore, sim: Simulation, hangings: int, intruders:
     X_WO_hangings = [
         hung_pose(sim.workcell.config.X_WO, sim.truth.seed, p).tolist() for p in range(hangings)
     ]
+    if sim.workcell.presentation != "hanging":
+        # Each further pass's pose is recorded when the turntable has turned the object.
+        X_WO_hangings = [sim.truth.X_WO.tolist()]
     extra = {"mesh": "truth_mesh.ply", "X_WO_hangings": X_WO_hangings}
     if intruders:  # the cell monitor's simulated intruders (the software is never told)
         extra["intruders"] = intruders
@@ -252,6 +255,9 @@ def run_scan(
         out = _scan_report(config, store, summary, run.tour_cost_s, len(views), timer, wall0)
         if run.monitor is not None:
             out["monitor"] = run.monitor.report()
+        presented = run.presentation.report(store.read_manifest())
+        if presented is not None:
+            out["presentation"] = presented
         if streamed is not None:
             seconds = streamed.processing_s()
             out["processing_s"] = sum(seconds.values())

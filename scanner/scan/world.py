@@ -28,14 +28,21 @@ from robots.drivers.interfaces import (
     Hardware,
     RobotDriver,
     StereoCameraDriver,
+    TurntableDriver,
     load_hardware,
 )
 from robots.models import camera_tool
-from robots.models.workcell import Workcell, build_workcell, keep_out_radius_m
+from robots.models.workcell import (
+    Workcell,
+    build_workcell,
+    check_presentation,
+    keep_out_radius_m,
+)
 from robots.simulation.cell import (
     Simulation,
     camera_at_reported_joints,
     create_simulation,
+    moved_object,
     rehang,
 )
 from scanner.configs.scan import ScanConfig
@@ -54,6 +61,13 @@ class ScanWorld:
     sim: Simulation | None  # None on hardware: no truth
     shown_cell: Workcell | None  # the cell Meshcat shows (built with meshcat=)
     hardware: Hardware | None = None
+    turntable: TurntableDriver | None = None  # a driver's (the simulated one: presentation's)
+
+    def with_object_at(self, X_WO: np.ndarray, meshcat=None) -> ScanWorld:
+        """The simulated world with the object at `X_WO` (a turntable turned it)."""
+        sim = moved_object(self.sim, X_WO, meshcat)
+        camera = sim.camera if self.hardware is None else camera_at_reported_joints(sim, self.robot)
+        return replace(self, camera=camera, sim=sim, shown_cell=sim.workcell)
 
     def rehang(
         self, hanging: int, operator: str, request: dict | None = None, meshcat=None
@@ -191,6 +205,7 @@ def simulated_cell(
         hanging=hanging,
         X_WO=X_WO,
         rgbd=rgbd,
+        presentation=config.presentation,
     )
 
 
@@ -202,6 +217,7 @@ def setup_world(
     that the cell can re-hang the object when the scan may ask for it."""
     model, X_FC = software_camera(config)
     check_reach(config, model)
+    check_presentation(config.presentation)
     sim = hardware = None
     if config.driver or config.hardware is not None:
         if config.driver:
@@ -214,11 +230,21 @@ def setup_world(
                 "(Hardware.request_rehang); this one cannot: scan with --hangings 1 and "
                 "combine scans with scanner merge"
             )
+        if config.presentation == "turntable":
+            from scanner.presentation.turntable import check_turntable
+
+            check_turntable(hardware.turntable)
     else:
         sim = simulated_cell(config, meshcat, hanging, X_WO)
     arm = arm_of(config.robot)
     planner_cell = build_workcell(
-        config.cell, None, X_FC, model.X_CR, arm, meshcat=meshcat if hardware else None
+        config.cell,
+        None,
+        X_FC,
+        model.X_CR,
+        arm,
+        meshcat=meshcat if hardware else None,
+        presentation=config.presentation,
     )
     # Scans always cache the roadmap (a second scan of the same cell starts at once).
     roadmaps = config.planner.cache_dir or str(cache_dir() / "roadmaps")
@@ -232,7 +258,15 @@ def setup_world(
             model = device_model_as_calibrated(device_model(), calibrated)
         shown = sim.workcell if sim is not None else planner_cell
         return ScanWorld(
-            hardware.robot, hardware.camera, planner, model, X_FC, sim, shown, hardware
+            hardware.robot,
+            hardware.camera,
+            planner,
+            model,
+            X_FC,
+            sim,
+            shown,
+            hardware,
+            hardware.turntable,
         )
     return ScanWorld(sim.robot, sim.camera, planner, model, X_FC, sim, sim.workcell)
 

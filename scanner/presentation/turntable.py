@@ -1,0 +1,172 @@
+"""Turntable: the object stands on a motorised turntable; between passes the scanner turns it.
+
+With `hangings: auto` the scanner chooses each turn from what the passes so far have seen (the
+next-best turn, `next_turn.py`); with a fixed number N of passes it turns by 360/N deg each
+time. The angle the turntable reports after each turn is recorded in the scan's manifest
+(`turntable_angles_rad`, one per pass: every capture of a pass was taken at its angle), so a
+resumed scan and the reconstruction know it: the known turn is the starting guess of the pass
+alignment (reconstruction/hangings/turntable.py), which still verifies it.
+
+A turntable that does not answer, or reports another angle than it was told, is refused: before
+anything moves (`check_turntable`, exit 2), or during the scan (`TurntableStoppedError`, exit
+5: the captures so far are kept and `--resume` turns it again).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from reconstruction.common.errors import ScannerError
+from reconstruction.evaluation.coverage import SeenSurface
+from robots.drivers.interfaces import TurntableDriver
+from robots.simulation.truth import hung_pose_of
+from robots.simulation.turntable import SimulatedTurntable, true_axis
+from scanner.presentation.base import Presentation
+from scanner.presentation.next_turn import next_best_turn, wrapped
+from scanner.scan.world import ScanWorld
+
+# How far the reported angle may be from the commanded one: a stepper turntable repeats to a
+# few hundredths of a degree; 0.2 deg is a missed step or a slipping belt, not noise.
+ANGLE_TOLERANCE_RAD = math.radians(0.2)
+ANGLES_KEY = "turntable_angles_rad"
+
+
+class TurntableStoppedError(ScannerError):
+    """The turntable failed during a scan; the scan ends as interrupted and can be resumed."""
+
+    exit_code = 5
+
+
+def _mismatch(commanded_rad: float, reported_rad: float) -> str | None:
+    """Why the reported angle is not the commanded one (None: it is)."""
+    if not math.isfinite(reported_rad):
+        return f"the turntable reports angle {reported_rad} after being told {_deg(commanded_rad)}"
+    if abs(wrapped(reported_rad - commanded_rad)) > ANGLE_TOLERANCE_RAD:
+        return (
+            f"the turntable reports {_deg(reported_rad)} after being told {_deg(commanded_rad)} "
+            f"(tolerance {math.degrees(ANGLE_TOLERANCE_RAD):g} deg)"
+        )
+    return None
+
+
+def _deg(angle_rad: float) -> str:
+    return f"{math.degrees(angle_rad):.2f} deg"
+
+
+def _turn(turntable: TurntableDriver, angle_rad: float) -> tuple[float | None, str | None]:
+    """Command `angle_rad` and read it back: (reported angle, None) or (None, what failed). A
+    driver that does not answer raises (its own time-out)."""
+    try:
+        turntable.rotate_to(angle_rad)
+        reported = float(turntable.angle_rad())
+    except Exception as e:  # any driver failure is the turntable's, told in one line
+        return None, f"the turntable did not answer ({type(e).__name__}: {e})"
+    problem = _mismatch(angle_rad, reported)
+    return (None, problem) if problem else (reported, None)
+
+
+def check_turntable(turntable: TurntableDriver | None) -> None:
+    """Before anything moves: the cell has a turntable, it answers, and it reports the angle
+    it is told (told to stay where it is, so nothing turns)."""
+    if turntable is None:
+        raise ScannerError(
+            "presentation: turntable needs a driver with a turntable (Hardware.turntable is "
+            "None); scan with presentation: hanging"
+        )
+    try:
+        now = float(turntable.angle_rad())
+    except Exception as e:
+        raise ScannerError(
+            f"turntable: the driver's turntable did not answer ({type(e).__name__}: {e}); "
+            "nothing was moved"
+        ) from None
+    _, problem = _turn(turntable, now)
+    if problem:
+        raise ScannerError(f"turntable: {problem}; nothing was moved")
+
+
+class Turntable(Presentation):
+    kind = "turntable"
+    driver: TurntableDriver | None = None
+
+    def _angles(self) -> list[float]:
+        return [float(a) for a in self.store.read_manifest().get(ANGLES_KEY, [])]
+
+    def begin(self, world: ScanWorld, current: int) -> ScanWorld:
+        angles = self._angles()
+        if world.turntable is not None:
+            self.driver = world.turntable
+        else:
+            # The simulated turntable, at the angle of the pass the scan is in (a resume).
+            X_WO_zero = hung_pose_of(self.store.root / "truth.yaml", 0)
+            if X_WO_zero is None:
+                X_WO_zero = world.sim.truth.X_WO
+            axis = true_axis(self.config.cell, self.config.error_model.seed)
+            angle = angles[current] if current < len(angles) else 0.0
+            self.driver = SimulatedTurntable(X_WO_zero, axis, angle)
+        if not angles:
+            self.store.update_manifest(**{ANGLES_KEY: [float(self.driver.angle_rad())]})
+        return world
+
+    def present(self, world: ScanWorld, index: int, request: dict | None, viewer=None) -> ScanWorld:
+        angles = self._angles()
+        if request is not None:
+            target = float(request["angle_rad"])
+        else:  # a fixed number of passes: evenly around
+            target = wrapped(angles[0] + 2 * math.pi * index / self.config.first_hangings)
+        reported, problem = _turn(self.driver, target)
+        if problem:
+            self.store.update_manifest(status="interrupted", pending_rehang=index)
+            captured = len(self.store.captured_indices())
+            raise TurntableStoppedError(
+                f"turntable: {problem} before pass {index + 1}; the {captured} captures so far "
+                f"are kept: continue with: scanner scan --resume {self.store.root}"
+            )
+        self.store.update_manifest(**{ANGLES_KEY: [*angles[:index], reported]})
+        if world.sim is not None and isinstance(self.driver, SimulatedTurntable):
+            world = world.with_object_at(self.driver.X_WO(), viewer)
+        return world
+
+    def plan(self, index: int, seen: SeenSurface, view_directions: np.ndarray) -> dict | None:
+        """The next-best turn from the angle of the pass now."""
+        angles = self._angles()
+        now = angles[index - 1]
+        choice = next_best_turn(
+            seen,
+            np.array(self.config.scan_center_m),
+            self.config.views.radius_m,
+            view_directions,
+            [wrapped(a - now) for a in angles[:index]],
+        )
+        if choice is None or choice.gain <= 0:
+            return None
+        target = wrapped(now + choice.turn_rad)
+        return {
+            "angle_rad": target,
+            "turn_rad": choice.turn_rad,
+            "expected_gain": choice.gain,
+            "words": (
+                f"pass {index + 1}: turning the turntable by {math.degrees(choice.turn_rad):+.0f} "
+                f"deg to {math.degrees(target):.0f} deg, where the views are expected to see "
+                f"{100 * choice.gain:.1f} % of the surface not seen so far"
+            ),
+        }
+
+    def report(self, manifest: dict) -> dict:
+        angles = [float(a) for a in manifest.get(ANGLES_KEY, [])]
+        asked = {e["hanging"]: e["next"] for e in manifest.get("hanging_log", []) if "next" in e}
+        passes = []
+        for p, angle in enumerate(angles):
+            record = {"pass": p + 1, "angle_deg": math.degrees(angle)}
+            if p > 0:
+                record["turn_deg"] = math.degrees(wrapped(angle - angles[p - 1]))
+                record["why"] = (
+                    asked[p]["asked_because"]
+                    if p in asked
+                    else f"a fixed number of passes (hangings: {self.config.hangings}), "
+                    "turned evenly around"
+                )
+            passes.append(record)
+        return {"kind": self.kind, "passes": passes}
