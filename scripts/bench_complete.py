@@ -78,7 +78,14 @@ def _excess(record: dict) -> float:
     )
 
 
-def _case(name: str, seed: int, out: Path, hangings: int | str, operator: str) -> dict:
+def _case(
+    name: str,
+    seed: int,
+    out: Path,
+    hangings: int | str,
+    operator: str,
+    presentation: str = "hanging",
+) -> dict:
     config = with_overrides(
         ScanConfig(),
         object_spec=str(MESHES / FILES[name]),
@@ -86,6 +93,7 @@ def _case(name: str, seed: int, out: Path, hangings: int | str, operator: str) -
         seed=seed,
         hangings=hangings,
         operator=operator,
+        presentation=presentation,
     )
     t0 = time.perf_counter()
     record: dict = {"object": name, "seed": seed}
@@ -103,6 +111,10 @@ def _case(name: str, seed: int, out: Path, hangings: int | str, operator: str) -
     record["coverage_estimate_excess"] = round(_excess(record), 4)
     verified = all(p.get("verified", True) for p in record["passes"])
     record["aligned"] = verified and report.get("alignment_error_mm", 99.0) <= 1.0
+    if "presentation" in report:
+        record["presentation"] = report["presentation"]
+    if "turntable" in report:
+        record["turntable"] = report["turntable"]
     return record
 
 
