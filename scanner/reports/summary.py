@@ -84,6 +84,41 @@ def _decision_lines(report: dict) -> list[str]:
     return lines
 
 
+def _presentation_lines(report: dict) -> list[str]:
+    """On a turntable: each pass's angle, the turn before it and why it was made; whether the
+    known turns verified without the search, and the axis they calibrated."""
+    presented = report.get("presentation")
+    if not presented:
+        return []
+    lines = [
+        "",
+        f"## Presentation: {presented['kind']}",
+        "",
+        "| pass | angle deg | turned deg | why |",
+        "|---|---|---|---|",
+    ]
+    for p in presented["passes"]:
+        turned = _fmt(p["turn_deg"], 1) if "turn_deg" in p else "-"
+        lines.append(
+            f"| {p['pass']} | {_fmt(p['angle_deg'], 1)} | {turned} | {p.get('why', '-')} |"
+        )
+    turntable = report.get("turntable")
+    if turntable:
+        known = turntable["known_turn_verified"]
+        lines += [
+            "",
+            f"Known turns verified without the search for hypotheses: {sum(known)} of "
+            f"{len(known)}. Turntable axis "
+            + (
+                f"calibrated from the verified turns: {_fmt(turntable['axis_offset_mm'], 2)} mm "
+                f"and {_fmt(turntable['axis_tilt_deg'], 3)} deg off the cell model's."
+                if turntable["axis_calibrated"]
+                else "not calibrated (no verified turn): the cell model's."
+            ),
+        ]
+    return lines
+
+
 def handeye_warning(report: dict) -> str | None:
     """The warning for a hand-eye correction that did not converge (None when it did or did
     not run)."""
@@ -300,6 +335,7 @@ def write_summary(report: dict, out: Path) -> Path:
     lines += _surface_lines(report)
     lines += _hangings_lines(report)
     lines += _decision_lines(report)
+    lines += _presentation_lines(report)
     lines += _handeye_lines(report)
     if "outputs" in report:
         lines += ["", "## Files", ""] + [f"- `{p}`" for p in report["outputs"].values()]
