@@ -152,6 +152,7 @@ CASES = [
     (["scan"], "--seed", _ints(0, 2**32 - 1)),
     (["scan"], "--hangings", _ints(1, 6)),
     (["scan"], "--operator", _names(["instructed", "random"])),
+    (["scan"], "--presentation", _names(["hanging", "table", "turntable"])),
     (["scan"], "--max-extra-views", _ints(0, 1000)),
     (["scan"], "--config", _paths(PATHS)),
     (["scan"], "--calibration", _paths(PATHS)),

@@ -175,3 +175,29 @@ def test_a_turntable_that_slips_mid_scan_stops_it_and_a_resume_keeps_the_angles(
     assert CaptureStore.open(out).captured_indices() == list(range(10))
     report = yaml.safe_load((out / "results" / "report.json").read_text())
     assert [p["angle_deg"] for p in report["presentation"]["passes"]] == pytest.approx([0, 180])
+
+
+def test_the_next_best_turn_faces_the_cameras_to_the_unseen_side():
+    import open3d as o3d
+
+    from reconstruction.evaluation.coverage import SeenSurface
+    from reconstruction.evaluation.metrics import SurfaceSamples, TriangleSurface
+    from scanner.presentation.next_turn import next_best_turn, wrapped
+
+    centre = np.array([0.4, 0.0, 1.0])
+    sphere = o3d.geometry.TriangleMesh.create_sphere(0.08, 20)
+    sphere.compute_vertex_normals()
+    v = np.asarray(sphere.vertices) + centre
+    normals = np.asarray(sphere.vertex_normals)
+    surface = TriangleSurface(v, np.asarray(sphere.triangles))
+    # The pass's cameras look from below on the -x side; they saw the -x half.
+    d = np.array([[-0.7, y, -0.6] for y in (-0.3, 0.0, 0.3)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    seen = SeenSurface(surface, SurfaceSamples(v, normals), normals[:, 0] < 0)
+    choice = next_best_turn(seen, centre, 0.5, d)
+    # Half a turn brings the unseen +x side to the cameras: far from the pass made (0).
+    assert abs(wrapped(choice.turn_rad)) > math.radians(135) and choice.gain > 0.2
+    # With that turn made, the next is elsewhere, and gains less.
+    other = next_best_turn(seen, centre, 0.5, d, (0.0, choice.turn_rad))
+    assert abs(wrapped(other.turn_rad - choice.turn_rad)) >= math.radians(10)
+    assert other.gain < choice.gain

@@ -56,12 +56,18 @@ def next_best_turn(
     if sight is None:
         return None
     d = np.asarray(view_directions, float).reshape(-1, 3)
+    # What the sight model says the passes made would see of the "unseen" samples (grazing
+    # views, the fixture's shadow, data the filter dropped): another turn only gains what they
+    # would not, else a small turn scores the pass it repeats.
+    made = np.zeros(len(sight.sees[0]), bool)
+    for u in used_turns_rad:
+        made |= sight.seen_by(d, rotation_about(UP, u))
     best: TurnChoice | None = None
     for k in range(1, candidates):
         turn = wrapped(2 * math.pi * k / candidates)
         if any(abs(wrapped(turn - u)) < MIN_SEPARATION_RAD for u in used_turns_rad):
             continue
-        gain = sight.gain(d, rotation_about(UP, turn))
+        gain = float((sight.seen_by(d, rotation_about(UP, turn)) & ~made).sum() / sight.total)
         if best is None or gain > best.gain:
             best = TurnChoice(turn, gain)
     return best

@@ -57,8 +57,12 @@ class UnseenSight:
         the centre) after the object turned by R (3x3) about the centre; the cameras are looked
         up at their nearest grid direction (8 deg apart at most, finer than the operator's own
         error)."""
+        return float(self.seen_by(view_directions, R).sum() / self.total)
+
+    def seen_by(self, view_directions: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Which unseen samples (bool per sample) those cameras would see."""
         nearest = np.argmax((view_directions @ R) @ self.grid.T, axis=1)  # rows: R^T d
-        return float(self.sees[nearest].any(axis=0).sum() / self.total)
+        return self.sees[nearest].any(axis=0)
 
 
 def unseen_sight(
