@@ -14,8 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robots.models.workcell import WorkcellConfig
-
 # Fractions of the object size: a disc that carries the object without hiding more of it than
 # it must, and a post stiff enough to look like one.
 DISC_RADIUS_FRACTION = 0.2
@@ -38,7 +36,8 @@ class TurntableGeometry:
         return np.array([0.0, 0.0, 1.0])
 
 
-def turntable_geometry(cell: WorkcellConfig) -> TurntableGeometry:
+def turntable_geometry(cell) -> TurntableGeometry:
+    """The turntable of a cell (a WorkcellConfig: its object centre and size)."""
     cx, cy, cz = cell.object_center_m
     top = cz - cell.object_size_m / 2
     return TurntableGeometry(
@@ -46,7 +45,7 @@ def turntable_geometry(cell: WorkcellConfig) -> TurntableGeometry:
     )
 
 
-def standing_pose(cell: WorkcellConfig, vertices_O: np.ndarray) -> np.ndarray:
+def standing_pose(cell, vertices_O: np.ndarray) -> np.ndarray:
     """The object's pose X_WO at the turntable's zero angle: the configured orientation, its
     centre on the axis, resting on the disc: its lowest point over the disc touches the disc's
     top (parts beyond the disc's rim may hang lower, as a figure's arm overhangs a plinth)."""
@@ -60,7 +59,7 @@ def standing_pose(cell: WorkcellConfig, vertices_O: np.ndarray) -> np.ndarray:
     return X
 
 
-def add_turntable(plant, cell: WorkcellConfig) -> None:
+def add_turntable(plant, cell) -> None:
     """The disc and its post, welded to the world (visual and collision geometry)."""
     from pydrake.geometry import Cylinder
     from pydrake.math import RigidTransform

@@ -8,8 +8,8 @@ resumed scan and the reconstruction know it: the known turn is the starting gues
 alignment (reconstruction/hangings/turntable.py), which still verifies it.
 
 A turntable that does not answer, or reports another angle than it was told, is refused: before
-anything moves (`check_turntable`, exit 2), or during the scan (`TurntableStoppedError`, exit
-5: the captures so far are kept and `--resume` turns it again).
+anything moves (`turntable_check.check_turntable`, exit 2), or during the scan
+(`TurntableStoppedError`, exit 5: the captures so far are kept and `--resume` turns it again).
 """
 
 from __future__ import annotations
@@ -18,73 +18,16 @@ import math
 
 import numpy as np
 
-from reconstruction.common.errors import ScannerError
 from reconstruction.evaluation.coverage import SeenSurface
 from robots.drivers.interfaces import TurntableDriver
 from robots.simulation.truth import hung_pose_of
 from robots.simulation.turntable import SimulatedTurntable, true_axis
 from scanner.presentation.base import Presentation
 from scanner.presentation.next_turn import next_best_turn, wrapped
+from scanner.presentation.turntable_check import TurntableStoppedError, turn
 from scanner.scan.world import ScanWorld
 
-# How far the reported angle may be from the commanded one: a stepper turntable repeats to a
-# few hundredths of a degree; 0.2 deg is a missed step or a slipping belt, not noise.
-ANGLE_TOLERANCE_RAD = math.radians(0.2)
 ANGLES_KEY = "turntable_angles_rad"
-
-
-class TurntableStoppedError(ScannerError):
-    """The turntable failed during a scan; the scan ends as interrupted and can be resumed."""
-
-    exit_code = 5
-
-
-def _mismatch(commanded_rad: float, reported_rad: float) -> str | None:
-    """Why the reported angle is not the commanded one (None: it is)."""
-    if not math.isfinite(reported_rad):
-        return f"the turntable reports angle {reported_rad} after being told {_deg(commanded_rad)}"
-    if abs(wrapped(reported_rad - commanded_rad)) > ANGLE_TOLERANCE_RAD:
-        return (
-            f"the turntable reports {_deg(reported_rad)} after being told {_deg(commanded_rad)} "
-            f"(tolerance {math.degrees(ANGLE_TOLERANCE_RAD):g} deg)"
-        )
-    return None
-
-
-def _deg(angle_rad: float) -> str:
-    return f"{math.degrees(angle_rad):.2f} deg"
-
-
-def _turn(turntable: TurntableDriver, angle_rad: float) -> tuple[float | None, str | None]:
-    """Command `angle_rad` and read it back: (reported angle, None) or (None, what failed). A
-    driver that does not answer raises (its own time-out)."""
-    try:
-        turntable.rotate_to(angle_rad)
-        reported = float(turntable.angle_rad())
-    except Exception as e:  # any driver failure is the turntable's, told in one line
-        return None, f"the turntable did not answer ({type(e).__name__}: {e})"
-    problem = _mismatch(angle_rad, reported)
-    return (None, problem) if problem else (reported, None)
-
-
-def check_turntable(turntable: TurntableDriver | None) -> None:
-    """Before anything moves: the cell has a turntable, it answers, and it reports the angle
-    it is told (told to stay where it is, so nothing turns)."""
-    if turntable is None:
-        raise ScannerError(
-            "presentation: turntable needs a driver with a turntable (Hardware.turntable is "
-            "None); scan with presentation: hanging"
-        )
-    try:
-        now = float(turntable.angle_rad())
-    except Exception as e:
-        raise ScannerError(
-            f"turntable: the driver's turntable did not answer ({type(e).__name__}: {e}); "
-            "nothing was moved"
-        ) from None
-    _, problem = _turn(turntable, now)
-    if problem:
-        raise ScannerError(f"turntable: {problem}; nothing was moved")
 
 
 class Turntable(Presentation):
@@ -116,7 +59,7 @@ class Turntable(Presentation):
             target = float(request["angle_rad"])
         else:  # a fixed number of passes: evenly around
             target = wrapped(angles[0] + 2 * math.pi * index / self.config.first_hangings)
-        reported, problem = _turn(self.driver, target)
+        reported, problem = turn(self.driver, target)
         if problem:
             self.store.update_manifest(status="interrupted", pending_rehang=index)
             captured = len(self.store.captured_indices())
