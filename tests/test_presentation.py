@@ -201,3 +201,18 @@ def test_the_next_best_turn_faces_the_cameras_to_the_unseen_side():
     other = next_best_turn(seen, centre, 0.5, d, (0.0, choice.turn_rad))
     assert abs(wrapped(other.turn_rad - choice.turn_rad)) >= math.radians(10)
     assert other.gain < choice.gain
+
+
+def test_the_report_gives_the_calibrated_axis_against_the_model_and_the_truth():
+    from reconstruction.hangings.alignment import PassAlignment
+    from scanner.presentation.known_turns import turntable_report
+
+    turns = KnownTurns((0.0, 2.0), NOMINAL)
+    T = turn_about_axis(TRUE_AXIS.p_W, TRUE_AXIS.u_W, -2.0)
+    verified = PassAlignment(1, T, 0.8, 3e-4, 0.0, 0.5, 0.0, 1, (), True)
+    r = turntable_report(turns, [verified], TRUE_AXIS)
+    assert r["axis_calibrated"] and r["known_turn_verified"] == [True]
+    assert r["axis_error_mm"] < 1e-6 and r["axis_error_deg"] < 1e-6
+    # The true axis is 0.99 mm and 0.1 deg off the model's.
+    assert r["axis_offset_mm"] == pytest.approx(0.99, abs=0.01)
+    assert r["axis_tilt_deg"] == pytest.approx(math.degrees(0.0017), abs=1e-3)

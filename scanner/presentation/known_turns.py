@@ -25,18 +25,37 @@ def known_turns(scan: SavedScan, passes: int | None = None) -> KnownTurns | None
     return KnownTurns(tuple(float(a) for a in angles), Axis(np.array(g.p_top_W), g.u_W))
 
 
-def turntable_report(turns: KnownTurns, alignments) -> dict:
+def true_turntable_axis(scan: SavedScan, truth) -> Axis | None:
+    """The simulated turntable's true axis (None without the simulator's truth)."""
+    if truth is None:
+        return None
+    from robots.simulation.turntable import true_axis
+
+    return true_axis(scan.config.cell, scan.config.error_model.seed)
+
+
+def turntable_report(turns: KnownTurns, alignments, truth: Axis | None = None) -> dict:
     """Whether each pass's known turn verified without the search, and the axis the verified
-    turns calibrate (its offset and tilt from the cell model's)."""
+    turns calibrate (its offset and tilt from the cell model's; with the simulator's `truth`,
+    from the true axis too)."""
     axis = turns.calibrated(verified_turns(alignments))
-    p0, u0 = turns.nominal.p_W, turns.nominal.u_W
-    # The offset is measured in the plane through the nominal point across the axis.
-    along = (p0 - axis.p_W) @ axis.u_W
-    offset = axis.p_W + along * axis.u_W - p0
-    return {
+    out = {
         "angles_deg": [math.degrees(a) for a in turns.angles_rad],
         "known_turn_verified": [a.from_known_turn for a in alignments],
         "axis_calibrated": bool(verified_turns(alignments)),
-        "axis_offset_mm": 1e3 * float(np.linalg.norm(offset)),
-        "axis_tilt_deg": math.degrees(math.acos(float(np.clip(axis.u_W @ u0, -1.0, 1.0)))),
     }
+    offset_m, tilt_rad = _apart(axis, turns.nominal)
+    out.update(axis_offset_mm=1e3 * offset_m, axis_tilt_deg=math.degrees(tilt_rad))
+    if truth is not None:
+        offset_m, tilt_rad = _apart(axis, truth)
+        out.update(axis_error_mm=1e3 * offset_m, axis_error_deg=math.degrees(tilt_rad))
+    return out
+
+
+def _apart(axis: Axis, reference: Axis) -> tuple[float, float]:
+    """How far `axis` passes from the reference's point (m, across it) and the angle between
+    their directions (rad)."""
+    d = reference.p_W - axis.p_W
+    across = d - (d @ axis.u_W) * axis.u_W
+    cos = float(np.clip(axis.u_W @ reference.u_W, -1.0, 1.0))
+    return float(np.linalg.norm(across)), math.acos(cos)

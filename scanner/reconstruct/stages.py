@@ -37,7 +37,11 @@ from reconstruction.surfaces.export import export_record, prepare_exports
 from reconstruction.surfaces.topology import mesh_quality
 from scanner.configs.scan import ProcessingConfig
 from scanner.configs.typed_yaml import load_yaml_file, to_dict
-from scanner.presentation.known_turns import known_turns, turntable_report
+from scanner.presentation.known_turns import (
+    known_turns,
+    true_turntable_axis,
+    turntable_report,
+)
 from scanner.reconstruct.evaluation import (
     hangings_report,
     observed_samples,
@@ -319,7 +323,9 @@ def _reconstruct(
             if hangings:
                 report.update(hangings_report(result, views, None))
             if inputs.turns is not None:
-                report["turntable"] = turntable_report(inputs.turns, result.alignments)
+                report["turntable"] = turntable_report(
+                    inputs.turns, result.alignments, true_turntable_axis(first, views.truths[0])
+                )
             report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
             report["reconstruct_s"] = time.perf_counter() - t0
             merged = {**earlier, **report}

@@ -111,7 +111,13 @@ def _presentation_lines(report: dict) -> list[str]:
             f"{len(known)}. Turntable axis "
             + (
                 f"calibrated from the verified turns: {_fmt(turntable['axis_offset_mm'], 2)} mm "
-                f"and {_fmt(turntable['axis_tilt_deg'], 3)} deg off the cell model's."
+                f"and {_fmt(turntable['axis_tilt_deg'], 3)} deg off the cell model's"
+                + (
+                    f" ({_fmt(turntable['axis_error_mm'], 2)} mm and "
+                    f"{_fmt(turntable['axis_error_deg'], 3)} deg off the simulator's true axis)."
+                    if "axis_error_mm" in turntable
+                    else "."
+                )
                 if turntable["axis_calibrated"]
                 else "not calibrated (no verified turn): the cell model's."
             ),
