@@ -57,6 +57,8 @@ class Turntable(Presentation):
         angles = self._angles()
         if request is not None:
             target = float(request["angle_rad"])
+        elif index < len(angles):  # a pass scanned again: at its angle (absolute, still valid)
+            target = angles[index]
         else:  # a fixed number of passes: evenly around
             target = wrapped(angles[0] + 2 * math.pi * index / self.config.first_hangings)
         reported, problem = turn(self.driver, target)
@@ -67,7 +69,9 @@ class Turntable(Presentation):
                 f"turntable: {problem} before pass {index + 1}; the {captured} captures so far "
                 f"are kept: continue with: scanner scan --resume {self.store.root}"
             )
-        self.store.update_manifest(**{ANGLES_KEY: [*angles[:index], reported]})
+        self.store.update_manifest(
+            **{ANGLES_KEY: [*angles[:index], reported, *angles[index + 1 :]]}
+        )
         if world.sim is not None and isinstance(self.driver, SimulatedTurntable):
             world = world.with_object_at(self.driver.X_WO(), viewer)
         return world
