@@ -43,6 +43,9 @@ class Simulation:
     robot: SimulatedRobot
     camera: SimulatedStereoCamera  # or a SimulatedDepthCamera when the tool carries one
     object_mesh: ObjectMesh | None
+    # (workcell, truth, true_joint_positions) -> the tool's camera: a sensor kind's simulated
+    # device (robots.sensors), kept for the cells rebuilt after a re-hang.
+    device: Callable | None = None
 
 
 def create_simulation(
@@ -58,13 +61,16 @@ def create_simulation(
     hanging: int = 0,
     X_WO: np.ndarray | None = None,
     rgbd: RgbdCamera | None = None,
+    device: Callable | None = None,
 ) -> Simulation:
     """Build the true world for `object_spec` (built-in name or mesh path) and its error model.
 
     `object_spec=None` builds the cell without an object (calibration); `extras` are passed to
     `build_workcell` (e.g. a calibration board). `rgbd`: the tool carries this depth camera
     (X_FC_nominal then places its colour camera) instead of the stereo pair. `arm` starts at
-    `q0` (None: its home).
+    `q0` (None: its home). `device(workcell, truth, true_joint_positions)`: the tool's
+    simulated camera (a sensor kind's, robots.sensors; None: the stereo pair, or the depth
+    camera with `rgbd`).
     """
     stereo = stereo or default_stereo_camera()
     if X_FC_nominal is None:
@@ -74,7 +80,7 @@ def create_simulation(
         X_WO = hung_pose(cell.X_WO, error_model.seed, hanging)
     truth = sample_truth(error_model, X_FC_nominal, stereo, X_WO, rgbd, arm.joint_count)
     sim_robot = SimulatedRobot(arm, truth.joint_offsets_rad, arm.home_q if q0 is None else q0)
-    return _assemble(cell, mesh, truth, sim_robot, meshcat, extras)
+    return _assemble(cell, mesh, truth, sim_robot, meshcat, extras, device)
 
 
 def _assemble(
@@ -84,6 +90,7 @@ def _assemble(
     sim_robot: SimulatedRobot,
     meshcat=None,
     extras: Sequence[Callable] = (),
+    device: Callable | None = None,
 ) -> Simulation:
     obj = None
     if mesh is not None:
@@ -101,8 +108,8 @@ def _assemble(
         include_object=mesh is not None,
         X_WO=truth.X_WO,
     )
-    camera = simulated_camera(workcell, truth, sim_robot.true_joint_positions)
-    return Simulation(workcell, truth, sim_robot, camera, mesh)
+    camera = (device or simulated_camera)(workcell, truth, sim_robot.true_joint_positions)
+    return Simulation(workcell, truth, sim_robot, camera, mesh, device)
 
 
 def simulated_camera(workcell: Workcell, truth: Truth, true_joint_positions):
@@ -121,7 +128,8 @@ def camera_at_reported_joints(sim: Simulation, robot: RobotDriver):
     encoder offsets), not by the simulator's own arm: with the controller emulator, the images
     follow the arm the wire reports."""
     offsets = sim.truth.joint_offsets_rad
-    return simulated_camera(sim.workcell, sim.truth, lambda: robot.joint_positions() + offsets)
+    device = sim.device or simulated_camera
+    return device(sim.workcell, sim.truth, lambda: robot.joint_positions() + offsets)
 
 
 def rehang(
@@ -132,4 +140,5 @@ def rehang(
     instruction)."""
     cell = sim.workcell.config
     X_WO = rehung_pose(sim.truth.X_WO, cell.X_WO, sim.truth.seed, hanging, operator, up_W)
-    return _assemble(cell, sim.object_mesh, replace(sim.truth, X_WO=X_WO), sim.robot, meshcat)
+    truth = replace(sim.truth, X_WO=X_WO)
+    return _assemble(cell, sim.object_mesh, truth, sim.robot, meshcat, device=sim.device)

@@ -17,7 +17,7 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.depth.camera_model import CameraModel, camera_model_to_dict
 from robots.arms.default import arm_of
 from robots.cache import cache_dir
-from robots.drivers.connect import close_all, connect_robot, open_camera
+from robots.drivers.connect import close_all, connect_robot
 from robots.drivers.interfaces import (
     DepthCameraDriver,
     Hardware,
@@ -33,6 +33,8 @@ from robots.models.calibration_board import (
 )
 from robots.models.kinematics import Kinematics
 from robots.models.workcell import build_workcell
+from robots.sensors import sensor_named
+from robots.sensors.registry import open_camera_of
 from robots.simulation.cell import (
     Simulation,
     camera_at_reported_joints,
@@ -75,7 +77,7 @@ class CalibrationWorld:
 
 def build_model(config: CalibrateConfig) -> CameraModel:
     """The nominal camera model of the calibration's sensor."""
-    return config.rgbd.rgbd_camera() if config.sensor == "rgbd" else config.camera.stereo_camera()
+    return sensor_named(config.sensor, scanning=True).nominal_model(config)
 
 
 def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> CalibrationWorld:
@@ -118,7 +120,7 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
 
 def _board_cell(config: CalibrateConfig, X_FC: np.ndarray, extras) -> Simulation:
     """The true simulated calibration cell (no object) with the configured sensor."""
-    rgbd = config.rgbd.rgbd_camera() if config.sensor == "rgbd" else None
+    sensor = sensor_named(config.sensor, scanning=True)
     stereo = config.camera.stereo_camera()
     return create_simulation(
         config.cell,
@@ -128,7 +130,8 @@ def _board_cell(config: CalibrateConfig, X_FC: np.ndarray, extras) -> Simulation
         X_FC,
         arm=arm_of(config.robot),
         extras=extras,
-        rgbd=rgbd,
+        rgbd=sensor.true_device(config),
+        device=sensor.simulated_device,
     )
 
 
@@ -140,7 +143,8 @@ def _configured_cell(config: CalibrateConfig, stereo, X_FC, extras):
         if config.hardware.camera.kind == "simulated":
             sim = _board_cell(config, X_FC, extras)
             return Hardware(robot, camera_at_reported_joints(sim, robot)), sim
-        return Hardware(robot, open_camera(config.hardware.camera, stereo.image_size)), None
+        sensor = sensor_named(config.sensor, scanning=True)
+        return Hardware(robot, open_camera_of(config.hardware.camera, sensor, stereo)), None
     except BaseException:
         close_all(robot)
         raise

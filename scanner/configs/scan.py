@@ -21,6 +21,7 @@ from reconstruction.surfaces.export import MeshExportConfig
 from reconstruction.surfaces.meshes import MESH_SUFFIXES
 from robots.drivers.settings import HardwareConfig
 from robots.models.workcell import WorkcellConfig
+from robots.sensors import sensor_named
 from robots.simulation.truth import ErrorModel
 from scanner.configs.flags import for_flag
 from scanner.configs.references import (
@@ -35,8 +36,6 @@ from scanner.configs.references import (
 from scanner.configs.typed_yaml import from_dict, to_dict
 from scanner.configs.views import ViewpointConfig
 from scanner.monitor.cell_monitor import MonitorSettings
-
-SENSORS = ("stereo", "rgbd")
 
 
 @dataclass(frozen=True)
@@ -152,8 +151,8 @@ class ScanConfig:
             raise ScannerError(
                 f"robot: expected 'rx60' or the path of an arm file, got {self.robot!r}"
             )
-        if self.sensor not in SENSORS:
-            raise ScannerError(f"sensor: expected one of {', '.join(SENSORS)}, got {self.sensor!r}")
+        # The kinds a scan can run with come from the registry (robots.sensors).
+        sensor_named(self.sensor, scanning=True)
         if self.driver and self.hardware is not None:
             raise ScannerError(
                 "hardware: a scan runs on --driver MODULE:FACTORY or on a hardware: section, "

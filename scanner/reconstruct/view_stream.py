@@ -93,7 +93,7 @@ class ViewStream:
         self._config = with_roi_centre(
             processing.reconstruction, np.array(scan.config.scan_center_m)
         )
-        self._sensor = prepare_sensor(scan.camera_model)
+        self._sensor = prepare_sensor(scan, scan.camera_model)
         self._joints: dict[int, np.ndarray] = {}
         self._remove = geometry_filter(
             scan.config,
