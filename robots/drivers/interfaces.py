@@ -116,34 +116,35 @@ class Hardware:
     request_rehang: Callable[[str], None] | None = None
 
 
-def load_hardware(spec: str, config: object) -> Hardware:
+def load_hardware(spec: str, config: object, sensor=None) -> Hardware:
     """`package.module:factory` -> factory(config) -> Hardware, e.g. `my_cell.rx60:connect`.
 
     The factory gets the command's whole configuration (a ScanConfig or a CalibrateConfig:
-    cell, camera, sensor, ...) and connects to the hardware; its camera must be of the
-    configured sensor's driver type. Every failure to find or call it is a user error naming
-    `spec`.
+    cell, camera, sensor, ...) and connects to the hardware. Its camera must be of the driver
+    type of `sensor`, the configured sensor kind (a robots.sensors.Sensor: `kind`,
+    `driver_type`; None: the stereo pair's). Every failure to find or call it is a user error
+    naming `spec`.
     """
     from reconstruction.common.errors import ScannerError
     from robots.drivers.driver_module import driver_factory
-    from robots.sensors import sensor_named
 
-    sensor = sensor_named(getattr(config, "sensor", "stereo"), scanning=True)
+    kind = "stereo" if sensor is None else sensor.kind
+    driver_type = StereoCameraDriver if sensor is None else sensor.driver_type
     try:
         factory = driver_factory(spec)
     except ScannerError as e:
         raise ScannerError(f"driver: {e}") from None
     hardware = factory(config)
-    wanted = getattr(sensor.driver_type, "__name__", "camera driver")
+    wanted = getattr(driver_type, "__name__", "camera driver")
     if not (isinstance(hardware, Hardware) and isinstance(hardware.robot, RobotDriver)):
         raise ScannerError(
             f"driver: {spec} returned {type(hardware).__name__}; "
             "expected robots.drivers.interfaces.Hardware"
             f" holding a RobotDriver and a {wanted}"
         )
-    if sensor.driver_type is None or not isinstance(hardware.camera, sensor.driver_type):
+    if driver_type is None or not isinstance(hardware.camera, driver_type):
         raise ScannerError(
             f"driver: {spec} returned a Hardware whose camera is a "
-            f"{type(hardware.camera).__name__}; sensor {sensor.kind} expects a {wanted}"
+            f"{type(hardware.camera).__name__}; sensor {kind} expects a {wanted}"
         )
     return hardware

@@ -93,7 +93,7 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
         )
     sim = None
     if config.driver:
-        hardware = load_hardware(config.driver, config)
+        hardware = load_hardware(config.driver, config, sensor_named(config.sensor, scanning=True))
     elif config.hardware is not None:
         hardware, sim = _configured_cell(config, stereo, X_FC, (*fixtures, *extras))
     else:

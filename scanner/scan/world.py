@@ -171,7 +171,7 @@ def setup_world(
     sim = hardware = None
     if config.driver or config.hardware is not None:
         if config.driver:
-            hardware = load_hardware(config.driver, config)
+            hardware = load_hardware(config.driver, config, sensor_of_config(config))
         else:
             hardware, sim = connect_cell(config, model, meshcat, hanging, X_WO)
         if config.auto_hangings and hardware.request_rehang is None and sim is None:
