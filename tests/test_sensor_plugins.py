@@ -97,3 +97,21 @@ def test_a_registered_kind_scans_and_models_the_true_object(perfect_depth, tmp_p
     # 0.024 mm, mean 0.012 mm; the noisy RGB-D device's are tenths of a millimetre).
     assert fused["accuracy_p90_mm"] < 0.1, fused
     assert fused["observed_fraction"] > 0.5, fused
+
+
+def test_an_installed_package_registers_a_kind_by_entry_point(monkeypatch):
+    import robots.sensors.registry as registry
+
+    class Point:
+        name = "perfect_depth"
+
+        def load(self):
+            return PerfectDepthSensor
+
+    monkeypatch.setattr(registry, "entry_points", lambda group: [Point()])
+    try:
+        assert registry.load_entry_points() == ["perfect_depth"]
+        assert isinstance(sensor_named("perfect_depth"), PerfectDepthSensor)
+    finally:
+        unregister_sensor("perfect_depth")
+    assert "perfect_depth" not in sensor_kinds()

@@ -1,6 +1,10 @@
-"""Sensor kinds by name: the built-in ones and any a plug-in registers."""
+"""Sensor kinds by name: the built-in ones and any a plug-in registers, by a call to
+`register_sensor` or through the `scanner.sensors` entry point group of an installed package
+(`my_depth = "my_package.sensor:MyDepth"`: a Sensor class or object)."""
 
 from __future__ import annotations
+
+from importlib.metadata import entry_points
 
 from reconstruction.common.errors import ScannerError
 from robots.sensors.sensor import Sensor
@@ -53,6 +57,20 @@ def open_camera_of(settings, sensor: Sensor, model):
     return sensor.open_driver(settings, model)
 
 
+ENTRY_POINTS = "scanner.sensors"
+
+
+def load_entry_points(group: str = ENTRY_POINTS) -> list[str]:
+    """Register the sensors installed packages declare in the entry point group `group`; the
+    kinds registered."""
+    kinds = []
+    for point in entry_points(group=group):
+        sensor = point.load()
+        register_sensor(sensor() if isinstance(sensor, type) else sensor)
+        kinds.append(point.name)
+    return kinds
+
+
 def _builtins() -> None:
     # Imported on first use, so that importing the registry stays cheap and a built-in
     # module may import the registry back.
@@ -63,3 +81,4 @@ def _builtins() -> None:
 
         for sensor in (StereoSensor(), RgbdSensor(), MonoSensor()):
             _SENSORS.setdefault(sensor.kind, sensor)
+        load_entry_points()

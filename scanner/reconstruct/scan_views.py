@@ -42,15 +42,16 @@ class CaptureViews:
 
 def capture_views(
     scan: SavedScan,
-    sensor: PreparedSensor,
+    sensor: PreparedSensor | object,
     X_FC: np.ndarray,
     params: StereoParams,
     indices: Sequence[int] | None = None,
     ready: Mapping[int, tuple[ViewCloud, np.ndarray]] | None = None,
     on_view: Callable[[], None] | None = None,
 ) -> CaptureViews:
-    """Stereo clouds of every readable capture (or of those among `indices`); damaged
-    captures are reported and skipped. `ready`: (view, joints) of captures already done by
+    """The clouds of every readable capture (or of those among `indices`) by the scan's
+    sensor (`sensor`: prepare_sensor's, or what the kind's prepare() made); damaged captures
+    are reported and skipped. `ready`: (view, joints) of captures already done by
     the same settings (streamed during the scan). `on_view()` after each capture (progress)."""
     out = CaptureViews([], [], {})
     wanted = None if indices is None else set(indices)
@@ -96,7 +97,7 @@ def prepare_sensor(scan: SavedScan, model: CameraModel) -> PreparedSensor:
 def capture_view(
     scan: SavedScan,
     index: int,
-    ready: PreparedSensor,
+    ready: PreparedSensor | object,
     X_FC: np.ndarray,
     params: StereoParams,
     capture: Capture | None = None,
@@ -107,6 +108,9 @@ def capture_view(
     gives the same arrays), else read."""
     if capture is None:
         capture = scan.store.read_capture(index)
+    if not isinstance(ready, PreparedSensor):
+        # What prepare() made, given alone (a Rectification, an RgbdCamera): the scan's kind.
+        ready = PreparedSensor(sensor_named(scan.sensor), ready)
     sensor = ready.sensor
     if capture.sensor != sensor.capture_format:
         raise ScannerError(
