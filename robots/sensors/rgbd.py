@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from reconstruction.calibration.file import calibrated_rgbd
 from reconstruction.common.errors import ScannerError
 from reconstruction.depth.camera_model import RgbdCamera, rgbd_camera_to_dict
 from reconstruction.depth.cloud import view_rgbd_cloud
@@ -31,16 +32,7 @@ class RgbdSensor(Sensor):
         return camera_tool.rig_X_FC(model.X_CR)
 
     def calibrated_model(self, model: RgbdCamera, calibration, where: str) -> RgbdCamera:
-        """The device keeps its own depth camera and extrinsics; a calibration gives its
-        colour camera and depth-scale correction, for images of the colour camera's size."""
-        color = calibration.camera
-        if (color.width, color.height) != model.image_size:
-            raise ScannerError(
-                f"{where}: calibrated for {color.width}x{color.height} images, the colour "
-                f"camera delivers {model.image_size[0]}x{model.image_size[1]}"
-            )
-        correction = calibration.depth_correction or 1.0
-        return replace(model, color=color, depth_correction=correction)
+        return calibrated_rgbd(model, calibration, where)
 
     def model_to_dict(self, model: RgbdCamera) -> dict:
         return rgbd_camera_to_dict(model)

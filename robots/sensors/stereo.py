@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from reconstruction.calibration.file import calibrated_stereo
 from reconstruction.common.errors import ScannerError
 from reconstruction.stereo.camera_model import StereoCamera, stereo_camera_to_dict
 from reconstruction.stereo.cloud import depth_image, view_cloud
@@ -31,15 +32,7 @@ class StereoSensor(Sensor):
         return camera_tool.nominal_X_FC(model.baseline_m)
 
     def calibrated_model(self, model: StereoCamera, calibration, where: str) -> StereoCamera:
-        """The calibration's pair, for images of the size the camera delivers."""
-        if calibration.stereo is None:
-            raise ScannerError(f"{where}: holds no stereo camera model")
-        if calibration.stereo.image_size != model.image_size:
-            raise ScannerError(
-                f"{where}: calibrated for {calibration.stereo.image_size} images, the camera "
-                f"delivers {model.image_size}"
-            )
-        return calibration.stereo
+        return calibrated_stereo(model, calibration, where)
 
     def offline_model(self, model: StereoCamera, calibration, where: str):
         """The calibration's pair; None (a one-camera calibration): the scan's own pair."""
