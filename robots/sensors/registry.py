@@ -57,6 +57,14 @@ def open_camera_of(settings, sensor: Sensor, model):
     return sensor.open_driver(settings, model)
 
 
+def sensor_of_camera_file(d) -> Sensor:
+    """The kind whose camera-model file section `d` is (by its `schema`; the stereo pair's
+    when it names none of theirs, whose reader then says what is wrong)."""
+    _builtins()
+    schema = d.get("schema") if isinstance(d, dict) else None
+    return next((s for s in _SENSORS.values() if s.model_schema == schema), _SENSORS["stereo"])
+
+
 ENTRY_POINTS = "scanner.sensors"
 
 

@@ -9,7 +9,12 @@ import numpy as np
 
 from reconstruction.calibration.file import calibrated_rgbd
 from reconstruction.common.errors import ScannerError
-from reconstruction.depth.camera_model import RgbdCamera, rgbd_camera_to_dict
+from reconstruction.depth.camera_model import (
+    SCHEMA,
+    RgbdCamera,
+    rgbd_camera_from_dict,
+    rgbd_camera_to_dict,
+)
 from reconstruction.depth.cloud import view_rgbd_cloud
 from reconstruction.stereo.params import object_depth_window
 from robots.drivers.interfaces import DepthCameraDriver
@@ -24,6 +29,8 @@ class RgbdSensor(Sensor):
     device_words = "an RGB-D camera"
     driver_type = DepthCameraDriver
     hardware_kinds = ("realsense",)
+    model_schema = SCHEMA
+    solves_depth_scale = True
 
     def nominal_model(self, config) -> RgbdCamera:
         return config.rgbd.rgbd_camera()
@@ -36,6 +43,16 @@ class RgbdSensor(Sensor):
 
     def model_to_dict(self, model: RgbdCamera) -> dict:
         return rgbd_camera_to_dict(model)
+
+    def model_from_dict(self, d: dict, where: str) -> RgbdCamera:
+        return rgbd_camera_from_dict(d, where)
+
+    def board_intrinsics(self, model: RgbdCamera):
+        """The colour camera's factory intrinsics: one camera's intrinsics from a few board
+        views are worse (measured in simulation with 10 stations: X_FC 2.35 mm and the depth
+        scale 0.58 % off with calibrated intrinsics, 0.26 mm and 0.012 % with the device's
+        own)."""
+        return model.color
 
     def describe(self, model: RgbdCamera) -> str:
         (dw, dh), (cw, ch) = model.depth_size, model.image_size

@@ -47,6 +47,11 @@ class Sensor(abc.ABC):
     pairs_of_captures: ClassVar[bool] = False
     # False: the kind's captures are only imported (a recording), never scanned.
     scans: ClassVar[bool] = True
+    # The `schema` of its camera-model file section (None: the kind has no such file); kinds
+    # may share one (the first registered reads a file that names no kind).
+    model_schema: ClassVar[str | None] = None
+    # What a calibration solves besides X_FC: True, the device's depth scale too.
+    solves_depth_scale: ClassVar[bool] = False
 
     # -- the camera model -----------------------------------------------------------------
     @abc.abstractmethod
@@ -70,6 +75,10 @@ class Sensor(abc.ABC):
     def model_to_dict(self, model) -> dict:
         """The camera model as a file section (scan.yaml's `camera:`)."""
 
+    def model_from_dict(self, d: dict, where: str):
+        """The camera model of a file section written by `model_to_dict` (`where` names it)."""
+        raise ScannerError(f"{where}: sensor {self.kind} has no camera-model file")
+
     @abc.abstractmethod
     def describe(self, model) -> str:
         """What measured depth, for reports: 'stereo pair (1280x960, baseline 120 mm)'."""
@@ -77,6 +86,11 @@ class Sensor(abc.ABC):
     @abc.abstractmethod
     def image_camera(self, model) -> PinholeCamera:
         """The camera whose images are kept and shown (and that sees a calibration board)."""
+
+    def board_intrinsics(self, model) -> PinholeCamera | None:
+        """The intrinsics a calibration keeps for the camera the board is seen by (a device's
+        factory ones); None: the calibration solves them."""
+        return None
 
     # -- reach -----------------------------------------------------------------------------
     @abc.abstractmethod

@@ -8,7 +8,12 @@ import numpy as np
 
 from reconstruction.calibration.file import calibrated_stereo
 from reconstruction.common.errors import ScannerError
-from reconstruction.stereo.camera_model import StereoCamera, stereo_camera_to_dict
+from reconstruction.stereo.camera_model import (
+    SCHEMA,
+    StereoCamera,
+    stereo_camera_from_dict,
+    stereo_camera_to_dict,
+)
 from reconstruction.stereo.cloud import depth_image, view_cloud
 from reconstruction.stereo.params import disparity_window, object_depth_window
 from reconstruction.stereo.rectification import Rectification, compute_rectification
@@ -24,6 +29,7 @@ class StereoSensor(Sensor):
     device_words = "a stereo camera"
     driver_type = StereoCameraDriver
     hardware_kinds = ("opencv",)
+    model_schema = SCHEMA
 
     def nominal_model(self, config) -> StereoCamera:
         return config.camera.stereo_camera()
@@ -40,6 +46,9 @@ class StereoSensor(Sensor):
 
     def model_to_dict(self, model: StereoCamera) -> dict:
         return stereo_camera_to_dict(model)
+
+    def model_from_dict(self, d: dict, where: str) -> StereoCamera:
+        return stereo_camera_from_dict(d, where)
 
     def describe(self, model: StereoCamera) -> str:
         w, h = model.image_size
