@@ -102,8 +102,9 @@ class ScanConfig:
     # The nominal stereo camera (what the software believes; the simulator's truth equals it
     # unless a calibration file says otherwise).
     camera: StereoDesign = field(default_factory=StereoDesign)
-    # What measures depth: "stereo" (the pair above, SGBM) or "rgbd" (an active depth camera
-    # with a colour camera beside it, `rgbd:`; a RealSense D415-class device by default).
+    # What measures depth, a sensor kind (robots.sensors): "stereo" (the pair above, SGBM),
+    # "rgbd" (an active depth camera with a colour camera beside it, `rgbd:`; a RealSense
+    # D415-class device by default), or a kind a plug-in registers.
     sensor: str = "stereo"
     rgbd: DepthDesign = field(default_factory=DepthDesign)
     views: ViewpointConfig = field(default_factory=ViewpointConfig)
