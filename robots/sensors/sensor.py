@@ -32,8 +32,9 @@ class Sensor(abc.ABC):
     """
 
     kind: ClassVar[str]  # the name in `sensor:` and in a scan's manifest
-    # The files of one capture (captures.py): "stereo" (left.png, right.png), "rgbd"
-    # (color.png, depth.png) or "mono" (image.png and its own camera); kinds may share one.
+    # The files of one capture (scanner/scan_dir/capture_formats.py): "stereo" (left.png,
+    # right.png), "rgbd" (color.png, depth.png) or "mono" (image.png and its own camera);
+    # kinds may share one.
     capture_format: ClassVar[str]
     model_words: ClassVar[str]  # what the camera model is, for messages: "a stereo pair"
     device_words: ClassVar[str]  # what the device is, for messages: "a stereo camera"
