@@ -73,8 +73,11 @@ def load_entry_points(group: str = ENTRY_POINTS) -> list[str]:
     kinds registered."""
     kinds = []
     for point in entry_points(group=group):
-        sensor = point.load()
-        register_sensor(sensor() if isinstance(sensor, type) else sensor)
+        try:
+            sensor = point.load()
+            register_sensor(sensor() if isinstance(sensor, type) else sensor)
+        except (ImportError, AttributeError, TypeError) as e:
+            raise ScannerError(f"sensor plug-in {point.name} ({group}): {e}") from None
         kinds.append(point.name)
     return kinds
 
