@@ -253,24 +253,25 @@ def load_calibration(path: Path) -> Calibration:
     return calibration
 
 
-def calibrated_model(model, calibration: Calibration, where: str):
-    """The camera model a calibration makes of the nominal `model` (a StereoCamera or an
-    RgbdCamera): the calibrated pair; or, for an RGB-D device (which keeps its own depth
-    camera and extrinsics), the calibrated colour camera and depth-scale correction. Images of
-    another size than the calibration's are refused, naming `where`."""
+def calibrated_rgbd(model, calibration: Calibration, where: str):
+    """The RGB-D device `model` as a calibration makes it: the device keeps its own depth
+    camera and extrinsics and takes the calibrated colour camera and depth-scale correction.
+    Images of another size than the calibration's are refused, naming `where`."""
     from dataclasses import replace
 
-    from reconstruction.depth.camera_model import RgbdCamera
+    color = calibration.camera
+    if (color.width, color.height) != model.image_size:
+        raise ScannerError(
+            f"{where}: calibrated for {color.width}x{color.height} images, the colour "
+            f"camera delivers {model.image_size[0]}x{model.image_size[1]}"
+        )
+    correction = calibration.depth_correction or 1.0
+    return replace(model, color=color, depth_correction=correction)
 
-    if isinstance(model, RgbdCamera):
-        color = calibration.camera
-        if (color.width, color.height) != model.image_size:
-            raise ScannerError(
-                f"{where}: calibrated for {color.width}x{color.height} images, the colour "
-                f"camera delivers {model.image_size[0]}x{model.image_size[1]}"
-            )
-        correction = calibration.depth_correction or 1.0
-        return replace(model, color=color, depth_correction=correction)
+
+def calibrated_stereo(model: StereoCamera, calibration: Calibration, where: str) -> StereoCamera:
+    """The calibration's stereo pair for the nominal pair `model`; a calibration without one,
+    or of another image size, is refused naming `where`."""
     if calibration.stereo is None:
         raise ScannerError(f"{where}: holds no stereo camera model")
     if calibration.stereo.image_size != model.image_size:

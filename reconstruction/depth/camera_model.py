@@ -207,19 +207,6 @@ def camera_model_from_dict(d: dict, where: str) -> CameraModel:
     return stereo_camera_from_dict(d, where)
 
 
-def sensor_of(model: CameraModel) -> str:
-    return "rgbd" if isinstance(model, RgbdCamera) else "stereo"
-
-
-def sensor_words(model: CameraModel) -> str:
-    """What measured depth, for reports: 'RGB-D camera (depth 848x480, colour 960x540)'."""
-    if isinstance(model, RgbdCamera):
-        (dw, dh), (cw, ch) = model.depth_size, model.image_size
-        return f"RGB-D camera (depth {dw}x{dh}, colour {cw}x{ch})"
-    w, h = model.image_size
-    return f"stereo pair ({w}x{h}, baseline {1000 * model.baseline_m:.0f} mm)"
-
-
 def save_rgbd_camera(model: RgbdCamera, path: Path) -> None:
     Path(path).write_text(yaml.safe_dump(rgbd_camera_to_dict(model), sort_keys=False))
 

@@ -1,8 +1,9 @@
-"""The two small interfaces a robot and a stereo camera implement: the simulator and real drivers.
+"""The small interfaces a robot and a camera implement: the simulator and real drivers.
 
 A real-hardware port implements `RobotDriver` (e.g. over the Staubli controller's socket
-interface) and `StereoCameraDriver` (e.g. a FlyCapture/Spinnaker grabber); nothing else in the
-product needs to change.
+interface) and the camera interface of the configured sensor kind (robots.sensors):
+`StereoCameraDriver` (e.g. a FlyCapture/Spinnaker grabber) or `DepthCameraDriver` (an RGB-D
+camera); nothing else in the product needs to change.
 """
 
 from __future__ import annotations
@@ -116,11 +117,12 @@ class CaptureError(RuntimeError):
 
 @dataclass(frozen=True, eq=False)
 class Hardware:
-    """A real (or any other) robot + stereo camera pair that a scan runs on instead of the
-    simulator; a driver module's factory returns one."""
+    """A real (or any other) robot and camera that a scan runs on instead of the simulator; a
+    driver module's factory returns one. The camera is of the configured sensor's driver type
+    (robots.sensors: a StereoCameraDriver for `stereo`, a DepthCameraDriver for `rgbd`)."""
 
     robot: RobotDriver
-    camera: StereoCameraDriver
+    camera: StereoCameraDriver | DepthCameraDriver
     # Multi-hanging scans: ask the operator to re-hang the object (the message says which
     # hanging and how) and return once it hangs still; None: this cell cannot re-hang.
     request_rehang: Callable[[str], None] | None = None
@@ -129,30 +131,39 @@ class Hardware:
     turntable: TurntableDriver | None = None
 
 
-def load_hardware(spec: str, config: object) -> Hardware:
+def load_hardware(spec: str, config: object, sensor=None) -> Hardware:
     """`package.module:factory` -> factory(config) -> Hardware, e.g. `my_cell.rx60:connect`.
 
     The factory gets the command's whole configuration (a ScanConfig or a CalibrateConfig:
-    cell, camera, ...) and connects to the hardware; every failure to find or call it is a user
-    error naming `spec`.
+    cell, camera, sensor, ...) and connects to the hardware. Its camera must be of the driver
+    type of `sensor`, the configured sensor kind (a robots.sensors.Sensor: `kind`,
+    `driver_type`; None: the stereo pair's). Every failure to find or call it is a user error
+    naming `spec`.
     """
     from reconstruction.common.errors import ScannerError
     from robots.drivers.driver_module import driver_factory
 
+    kind = "stereo" if sensor is None else sensor.kind
+    driver_type = StereoCameraDriver if sensor is None else sensor.driver_type
     try:
         factory = driver_factory(spec)
     except ScannerError as e:
         raise ScannerError(f"driver: {e}") from None
     hardware = factory(config)
+    wanted = getattr(driver_type, "__name__", "camera driver")
     if not (
         isinstance(hardware, Hardware)
         and isinstance(hardware.robot, RobotDriver)
-        and isinstance(hardware.camera, StereoCameraDriver)
         and (hardware.turntable is None or isinstance(hardware.turntable, TurntableDriver))
     ):
         raise ScannerError(
             f"driver: {spec} returned {type(hardware).__name__}; "
             "expected robots.drivers.interfaces.Hardware"
-            " holding a RobotDriver and a StereoCameraDriver"
+            f" holding a RobotDriver and a {wanted}"
+        )
+    if driver_type is None or not isinstance(hardware.camera, driver_type):
+        raise ScannerError(
+            f"driver: {spec} returned a Hardware whose camera is a "
+            f"{type(hardware.camera).__name__}; sensor {kind} expects a {wanted}"
         )
     return hardware

@@ -44,6 +44,9 @@ class Simulation:
     robot: SimulatedRobot
     camera: SimulatedStereoCamera  # or a SimulatedDepthCamera when the tool carries one
     object_mesh: ObjectMesh | None
+    # (workcell, truth, true_joint_positions) -> the tool's camera: a sensor kind's simulated
+    # device (robots.sensors), kept for the cells rebuilt after a re-hang.
+    device: Callable | None = None
 
 
 def create_simulation(
@@ -60,6 +63,7 @@ def create_simulation(
     X_WO: np.ndarray | None = None,
     rgbd: RgbdCamera | None = None,
     presentation: str = "hanging",
+    device: Callable | None = None,
 ) -> Simulation:
     """Build the true world for `object_spec` (built-in name or mesh path) and its error model.
 
@@ -68,6 +72,8 @@ def create_simulation(
     (X_FC_nominal then places its colour camera) instead of the stereo pair. `arm` starts at
     `q0` (None: its home). `presentation`: the object hangs from the rod ("hanging") or stands
     on the turntable ("turntable", at its zero angle unless `X_WO` is given).
+    `device(workcell, truth, true_joint_positions)`: the tool's simulated camera (a sensor
+    kind's, robots.sensors; None: the stereo pair, or the depth camera with `rgbd`).
     """
     stereo = stereo or default_stereo_camera()
     if X_FC_nominal is None:
@@ -79,7 +85,7 @@ def create_simulation(
         X_WO = hung_pose(cell.X_WO, error_model.seed, hanging)
     truth = sample_truth(error_model, X_FC_nominal, stereo, X_WO, rgbd, arm.joint_count)
     sim_robot = SimulatedRobot(arm, truth.joint_offsets_rad, arm.home_q if q0 is None else q0)
-    return _assemble(cell, mesh, truth, sim_robot, meshcat, extras, presentation)
+    return _assemble(cell, mesh, truth, sim_robot, meshcat, extras, presentation, device)
 
 
 def _assemble(
@@ -90,6 +96,7 @@ def _assemble(
     meshcat=None,
     extras: Sequence[Callable] = (),
     presentation: str = "hanging",
+    device: Callable | None = None,
 ) -> Simulation:
     obj = None
     if mesh is not None:
@@ -108,8 +115,8 @@ def _assemble(
         X_WO=truth.X_WO,
         presentation=presentation,
     )
-    camera = simulated_camera(workcell, truth, sim_robot.true_joint_positions)
-    return Simulation(workcell, truth, sim_robot, camera, mesh)
+    camera = (device or simulated_camera)(workcell, truth, sim_robot.true_joint_positions)
+    return Simulation(workcell, truth, sim_robot, camera, mesh, device)
 
 
 def simulated_camera(workcell: Workcell, truth: Truth, true_joint_positions):
@@ -128,7 +135,8 @@ def camera_at_reported_joints(sim: Simulation, robot: RobotDriver):
     encoder offsets), not by the simulator's own arm: with the controller emulator, the images
     follow the arm the wire reports."""
     offsets = sim.truth.joint_offsets_rad
-    return simulated_camera(sim.workcell, sim.truth, lambda: robot.joint_positions() + offsets)
+    device = sim.device or simulated_camera
+    return device(sim.workcell, sim.truth, lambda: robot.joint_positions() + offsets)
 
 
 def rehang(
@@ -139,7 +147,11 @@ def rehang(
     instruction)."""
     cell = sim.workcell.config
     X_WO = rehung_pose(sim.truth.X_WO, cell.X_WO, sim.truth.seed, hanging, operator, up_W)
-    return _assemble(cell, sim.object_mesh, replace(sim.truth, X_WO=X_WO), sim.robot, meshcat)
+    truth = replace(sim.truth, X_WO=X_WO)
+    presentation = sim.workcell.presentation
+    return _assemble(
+        cell, sim.object_mesh, truth, sim.robot, meshcat, (), presentation, device=sim.device
+    )
 
 
 def moved_object(sim: Simulation, X_WO: np.ndarray, meshcat=None) -> Simulation:
@@ -147,4 +159,6 @@ def moved_object(sim: Simulation, X_WO: np.ndarray, meshcat=None) -> Simulation:
     turntable turned it)."""
     truth = replace(sim.truth, X_WO=np.asarray(X_WO, float))
     cell, presentation = sim.workcell.config, sim.workcell.presentation
-    return _assemble(cell, sim.object_mesh, truth, sim.robot, meshcat, (), presentation)
+    return _assemble(
+        cell, sim.object_mesh, truth, sim.robot, meshcat, (), presentation, device=sim.device
+    )

@@ -18,6 +18,7 @@ from reconstruction.stereo.camera_model import StereoDesign
 from robots.drivers.settings import HardwareConfig
 from robots.models.calibration_board import BoardPlacement
 from robots.models.workcell import WorkcellConfig
+from robots.sensors import sensor_named
 from robots.simulation.blinking_marker import MarkerConfig
 from robots.simulation.static_camera import StaticCameraConfig
 from robots.simulation.truth import MAX_SEED, ErrorModel
@@ -92,8 +93,7 @@ class CalibrateConfig:
     rgbd: DepthDesign = field(default_factory=DepthDesign)
 
     def __post_init__(self) -> None:
-        if self.sensor not in ("stereo", "rgbd"):
-            raise ScannerError(f"sensor: expected 'stereo' or 'rgbd', got {self.sensor!r}")
+        sensor_named(self.sensor, scanning=True)
         if not isinstance(self.robot, str) or not self.robot.strip():
             raise ScannerError(
                 f"robot: expected 'rx60' or the path of an arm file, got {self.robot!r}"

@@ -14,10 +14,10 @@ import numpy as np
 
 from planners.planner import PlanFailure, Planner
 from reconstruction.common.errors import ScannerError
-from reconstruction.depth.camera_model import CameraModel, camera_model_to_dict
+from reconstruction.depth.camera_model import CameraModel
 from robots.arms.default import arm_of
 from robots.cache import cache_dir
-from robots.drivers.connect import close_all, connect_robot, open_camera
+from robots.drivers.connect import close_all, connect_robot
 from robots.drivers.interfaces import (
     DepthCameraDriver,
     Hardware,
@@ -33,6 +33,8 @@ from robots.models.calibration_board import (
 )
 from robots.models.kinematics import Kinematics
 from robots.models.workcell import build_workcell
+from robots.sensors import Sensor, sensor_named
+from robots.sensors.registry import open_camera_of
 from robots.simulation.cell import (
     Simulation,
     camera_at_reported_joints,
@@ -73,9 +75,14 @@ class CalibrationWorld:
         return self.planner.is_collision_free(q)
 
 
+def _sensor(config: CalibrateConfig) -> Sensor:
+    """The sensor kind the calibration's `sensor:` names."""
+    return sensor_named(config.sensor, scanning=True)
+
+
 def build_model(config: CalibrateConfig) -> CameraModel:
     """The nominal camera model of the calibration's sensor."""
-    return config.rgbd.rgbd_camera() if config.sensor == "rgbd" else config.camera.stereo_camera()
+    return _sensor(config).nominal_model(config)
 
 
 def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> CalibrationWorld:
@@ -91,7 +98,7 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
         )
     sim = None
     if config.driver:
-        hardware = load_hardware(config.driver, config)
+        hardware = load_hardware(config.driver, config, _sensor(config))
     elif config.hardware is not None:
         hardware, sim = _configured_cell(config, stereo, X_FC, (*fixtures, *extras))
     else:
@@ -118,7 +125,7 @@ def build_world(config: CalibrateConfig, extras=(), with_board: bool = True) -> 
 
 def _board_cell(config: CalibrateConfig, X_FC: np.ndarray, extras) -> Simulation:
     """The true simulated calibration cell (no object) with the configured sensor."""
-    rgbd = config.rgbd.rgbd_camera() if config.sensor == "rgbd" else None
+    sensor = _sensor(config)
     stereo = config.camera.stereo_camera()
     return create_simulation(
         config.cell,
@@ -128,7 +135,8 @@ def _board_cell(config: CalibrateConfig, X_FC: np.ndarray, extras) -> Simulation
         X_FC,
         arm=arm_of(config.robot),
         extras=extras,
-        rgbd=rgbd,
+        rgbd=sensor.true_device(config),
+        device=sensor.simulated_device,
     )
 
 
@@ -140,7 +148,8 @@ def _configured_cell(config: CalibrateConfig, stereo, X_FC, extras):
         if config.hardware.camera.kind == "simulated":
             sim = _board_cell(config, X_FC, extras)
             return Hardware(robot, camera_at_reported_joints(sim, robot)), sim
-        return Hardware(robot, open_camera(config.hardware.camera, stereo.image_size)), None
+        camera = open_camera_of(config.hardware.camera, _sensor(config), stereo)
+        return Hardware(robot, camera), None
     except BaseException:
         close_all(robot)
         raise
@@ -177,7 +186,7 @@ def _check_resume_matches(manifest: dict, config: CalibrateConfig, where: Path) 
     wanted = {
         "board": to_dict(config.board),
         "placement": to_dict(config.placement),
-        "camera": camera_model_to_dict(build_model(config)),
+        "camera": _sensor(config).model_to_dict(build_model(config)),
         "driver": config.driver,
     }
     require_same_settings(where, "calibration", {k: manifest.get(k) for k in wanted}, wanted)
@@ -274,7 +283,7 @@ def _start_run(
         "kind": "calibration",
         "board": to_dict(config.board),
         "placement": to_dict(config.placement),
-        "camera": camera_model_to_dict(world.stereo),
+        "camera": _sensor(config).model_to_dict(world.stereo),
         "X_FC_nominal": world.X_FC.tolist(),
         "pose_count": len(plan.stations),
         "stations": [

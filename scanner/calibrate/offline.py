@@ -29,8 +29,9 @@ from reconstruction.calibration.pose_files import (
 from reconstruction.calibration.settings import CalibrationSettings
 from reconstruction.common.errors import RefusedResultError, ScannerError
 from reconstruction.common.yaml_files import read_yaml
-from reconstruction.depth.camera_model import RgbdCamera, camera_model_from_dict
+from reconstruction.depth.camera_model import RgbdCamera
 from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera, stereo_camera_from_dict
+from robots.sensors.registry import sensor_of_camera_file
 from robots.simulation.truth import load_truth
 from scanner.calibrate.cameras_only import CamerasRun, calibrate_cameras, require_board_size
 from scanner.calibrate.corners import ImageLoader, rank_pictures
@@ -354,16 +355,14 @@ def calibrate_directory(
     if isinstance(intrinsics, PinholeCamera) and intrinsics.width == 1:
         intrinsics = _with_size(intrinsics, size)
     # The run's recorded camera model says which sensor took the captures.
-    device = None
+    device = sensor = None
     if is_store and "camera" in manifest:
-        device = camera_model_from_dict(manifest["camera"], f"{store.manifest_path}:camera")
-    rgbd = isinstance(device, RgbdCamera)
-    if rgbd and intrinsics is None:
-        # The colour camera's factory intrinsics (the device model the run recorded): one
-        # camera's intrinsics from a few board views are worse (measured in simulation with
-        # 10 stations: X_FC 2.35 mm and the depth scale 0.58 % off with calibrated
-        # intrinsics, 0.26 mm and 0.012 % with the device's own).
-        intrinsics = device.color
+        sensor = sensor_of_camera_file(manifest["camera"])
+        device = sensor.model_from_dict(manifest["camera"], f"{store.manifest_path}:camera")
+    if sensor is not None and intrinsics is None:
+        # A device's factory intrinsics where the sensor keeps them (the model the run
+        # recorded), else solved from the board.
+        intrinsics = sensor.board_intrinsics(device)
     solution = solve(board, observations, size, settings, intrinsics, source)
     problems = implausible_figures(solution.hand_eye, settings, solution.calibration.stereo)
     if problems:
@@ -374,7 +373,7 @@ def calibrate_directory(
             f"description{hint}"
         )
     depth_report = {}
-    if rgbd:
+    if sensor is not None and sensor.solves_depth_scale:
         solution, depth_report = _with_depth_correction(store, board, solution, device)
     truth = _truth_of(root)
     errors = None if truth is None else truth_errors(solution, *truth)

@@ -160,11 +160,12 @@ def add_merge_parser(sub) -> None:
 def reconstruct_saved(scan_dir, options):
     """One saved scan directory reconstructed as what it is: a scan of this product's cell, or
     an imported recording of one camera (pairs of its views make the clouds)."""
+    from robots.sensors import sensor_named
     from scanner.reconstruct.command import reconstruct_one
     from scanner.scan_dir.manifest import open_scan
 
     scan = open_scan(scan_dir)
-    if scan.recording is not None:
+    if sensor_named(scan.sensor).pairs_of_captures:
         from scanner.recordings.reconstruct import reconstruct_recording_with
 
         return reconstruct_recording_with(scan, options)

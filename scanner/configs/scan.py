@@ -21,6 +21,7 @@ from reconstruction.surfaces.export import MeshExportConfig
 from reconstruction.surfaces.meshes import MESH_SUFFIXES
 from robots.drivers.settings import HardwareConfig
 from robots.models.workcell import WorkcellConfig
+from robots.sensors import sensor_named
 from robots.simulation.truth import ErrorModel
 from scanner.configs.flags import for_flag
 from scanner.configs.references import (
@@ -35,8 +36,6 @@ from scanner.configs.references import (
 from scanner.configs.typed_yaml import from_dict, to_dict
 from scanner.configs.views import ViewpointConfig
 from scanner.monitor.cell_monitor import MonitorSettings
-
-SENSORS = ("stereo", "rgbd")
 
 
 @dataclass(frozen=True)
@@ -105,8 +104,9 @@ class ScanConfig:
     # The nominal stereo camera (what the software believes; the simulator's truth equals it
     # unless a calibration file says otherwise).
     camera: StereoDesign = field(default_factory=StereoDesign)
-    # What measures depth: "stereo" (the pair above, SGBM) or "rgbd" (an active depth camera
-    # with a colour camera beside it, `rgbd:`; a RealSense D415-class device by default).
+    # What measures depth, a sensor kind (robots.sensors): "stereo" (the pair above, SGBM),
+    # "rgbd" (an active depth camera with a colour camera beside it, `rgbd:`; a RealSense
+    # D415-class device by default), or a kind a plug-in registers.
     sensor: str = "stereo"
     rgbd: DepthDesign = field(default_factory=DepthDesign)
     views: ViewpointConfig = field(default_factory=ViewpointConfig)
@@ -163,8 +163,8 @@ class ScanConfig:
                 f"presentation: expected one of {', '.join(PRESENTATIONS)}, got "
                 f"{self.presentation!r}"
             )
-        if self.sensor not in SENSORS:
-            raise ScannerError(f"sensor: expected one of {', '.join(SENSORS)}, got {self.sensor!r}")
+        # The kinds a scan can run with come from the registry (robots.sensors).
+        sensor_named(self.sensor, scanning=True)
         if self.driver and self.hardware is not None:
             raise ScannerError(
                 "hardware: a scan runs on --driver MODULE:FACTORY or on a hardware: section, "

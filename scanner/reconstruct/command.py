@@ -34,8 +34,8 @@ class ReconstructOptions:
 def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructRun:
     """The scan's own settings unless --config; results in a free SCAN_DIR/results[-N] unless
     --out (which must not hold a reconstruction, unless --force)."""
-    from reconstruction.calibration.file import calibrated_model, load_calibration
-    from reconstruction.depth.camera_model import RgbdCamera
+    from reconstruction.calibration.file import load_calibration
+    from robots.sensors import sensor_named
     from scanner.reconstruct.stages import (
         RECONSTRUCTION_MARKER,
         free_reconstruction_dir,
@@ -74,9 +74,10 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
     if options.calibration is not None:
         calibration = load_calibration(options.calibration)
         X_FC = calibration.X_FC
-        stereo = calibration.stereo  # None (a one-camera calibration): the scan's own pair
-        if isinstance(scan.camera_model, RgbdCamera):
-            stereo = calibrated_model(scan.camera_model, calibration, str(options.calibration))
+        # The scan's sensor reads the calibration (None: the scan's own camera model).
+        stereo = sensor_named(scan.sensor).offline_model(
+            scan.camera_model, calibration, str(options.calibration)
+        )
         if calibration.robot is not None:
             # X_FC was estimated with the arm's own errors: the poses must carry them too.
             from robots.arms.default import DEFAULT_ROBOT

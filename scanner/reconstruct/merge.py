@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from reconstruction.common.errors import ScannerError
-from reconstruction.depth.camera_model import camera_model_to_dict
+from robots.sensors import sensor_named
 from scanner.reconstruct.stages import (
     RECONSTRUCTION_MARKER,
     ReconstructRun,
@@ -38,9 +38,9 @@ def run_merge(
     scans = [open_scan(d) for d in scan_dirs]
     for scan in scans:
         require_robot_scan(scan, "scanner merge")
-    first = camera_model_to_dict(scans[0].camera_model)
+    first = _camera_of(scans[0])
     for scan in scans[1:]:
-        if camera_model_to_dict(scan.camera_model) != first:
+        if _camera_of(scan) != first:
             raise ScannerError(
                 f"{scan.root}: made with another camera model than {scans[0].root}; merged "
                 "scans share one camera and one hand-eye transform"
@@ -48,3 +48,8 @@ def run_merge(
     require_replaceable(out, RECONSTRUCTION_MARKER, force, "reconstruction")
     processing = None if config is None else load_processing_config(config)
     return run_reconstruct(scans, processing, Path(out), progress=progress)
+
+
+def _camera_of(scan) -> tuple[str, dict]:
+    """The scan's sensor kind and its camera model as a file section (what must agree)."""
+    return scan.sensor, sensor_named(scan.sensor).model_to_dict(scan.camera_model)

@@ -14,7 +14,7 @@ import numpy as np
 
 from reconstruction.hangings.merge import to_first_frame
 from reconstruction.pipeline import ReconstructionResult
-from reconstruction.stereo.camera_model import StereoCamera
+from robots.sensors import sensor_named
 from scanner.configs.scan import ProcessingConfig
 from scanner.reconstruct.scan_views import Gathered
 from scanner.reports.model_page_layers import (
@@ -111,7 +111,7 @@ def reconstruction_scene(
     unseen = None
     if truth_samples is not None and truth_samples[1] is not None:
         unseen = thinned(truth_samples[0].points[~truth_samples[1]])
-    camera = camera_model.left if isinstance(camera_model, StereoCamera) else camera_model.color
+    camera = sensor_named(scan.sensor).image_camera(camera_model)
     first = next((v for v in result.views if v.hanging == 0), None)
     robot = None
     if first is not None and first.index in views.joints:

@@ -13,18 +13,16 @@ from pathlib import Path
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
-from reconstruction.depth.camera_model import CameraModel, RgbdCamera
-from reconstruction.depth.cloud import view_rgbd_cloud
+from reconstruction.depth.camera_model import CameraModel
 from reconstruction.evaluation.metrics import TriangleSurface
 from reconstruction.pipeline import ReconstructionConfig
 from reconstruction.registration.filtering import VIEW_THREADS, filter_views
 from reconstruction.registration.views import ViewCloud
-from reconstruction.stereo.cloud import depth_image, view_cloud
 from reconstruction.stereo.params import StereoParams
-from reconstruction.stereo.rectification import Rectification, compute_rectification
 from reconstruction.surfaces.fixture import FixtureLine
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds
 from robots.models.workcell import keep_out_radius_m
+from robots.sensors import Sensor, sensor_named
 from scanner.configs.scan import ProcessingConfig, ScanConfig
 from scanner.scan_dir.captures import Capture
 from scanner.scan_dir.manifest import SavedScan
@@ -44,15 +42,16 @@ class CaptureViews:
 
 def capture_views(
     scan: SavedScan,
-    sensor: Sensor,
+    sensor: PreparedSensor | object,
     X_FC: np.ndarray,
     params: StereoParams,
     indices: Sequence[int] | None = None,
     ready: Mapping[int, tuple[ViewCloud, np.ndarray]] | None = None,
     on_view: Callable[[], None] | None = None,
 ) -> CaptureViews:
-    """Stereo clouds of every readable capture (or of those among `indices`); damaged
-    captures are reported and skipped. `ready`: (view, joints) of captures already done by
+    """The clouds of every readable capture (or of those among `indices`) by the scan's
+    sensor (`sensor`: prepare_sensor's, or what the kind's prepare() made); damaged captures
+    are reported and skipped. `ready`: (view, joints) of captures already done by
     the same settings (streamed during the scan). `on_view()` after each capture (progress)."""
     out = CaptureViews([], [], {})
     wanted = None if indices is None else set(indices)
@@ -80,19 +79,25 @@ def capture_views(
     return out
 
 
-Sensor = Rectification | RgbdCamera
+@dataclass(frozen=True, eq=False)
+class PreparedSensor:
+    """A scan's sensor kind and what it computed once of the camera model (a stereo pair's
+    rectification, an RGB-D device's model itself) to turn captures into clouds."""
+
+    sensor: Sensor
+    prepared: object
 
 
-def prepare_sensor(model: CameraModel) -> Sensor:
-    """What turning captures into clouds needs of a camera model: a stereo pair's
-    rectification (computed once), or the RGB-D device's model itself."""
-    return model if isinstance(model, RgbdCamera) else compute_rectification(model)
+def prepare_sensor(scan: SavedScan, model: CameraModel) -> PreparedSensor:
+    """The scan's sensor (its manifest's kind), prepared for the camera model `model`."""
+    sensor = sensor_named(scan.sensor)
+    return PreparedSensor(sensor, sensor.prepare(model))
 
 
 def capture_view(
     scan: SavedScan,
     index: int,
-    sensor: Sensor,
+    ready: PreparedSensor | object,
     X_FC: np.ndarray,
     params: StereoParams,
     capture: Capture | None = None,
@@ -103,32 +108,20 @@ def capture_view(
     gives the same arrays), else read."""
     if capture is None:
         capture = scan.store.read_capture(index)
-    rgbd = isinstance(sensor, RgbdCamera)
-    if capture.sensor != ("rgbd" if rgbd else "stereo"):
+    if not isinstance(ready, PreparedSensor):
+        # What prepare() made, given alone (a Rectification, an RgbdCamera): the scan's kind.
+        ready = PreparedSensor(sensor_named(scan.sensor), ready)
+    sensor = ready.sensor
+    if capture.sensor != sensor.capture_format:
         raise ScannerError(
-            f"a {capture.sensor} capture in a scan whose camera is "
-            f"{'an RGB-D device' if rgbd else 'a stereo pair'}"
+            f"a {capture.sensor} capture in a scan whose camera is {sensor.model_words}"
         )
     centre = np.array(scan.config.scan_center_m, float)
     radius = keep_out_radius_m(scan.config.cell)
     X_WF = scan.X_WF(capture)
     X_WC = X_WF @ X_FC
-    if rgbd:
-        if capture.depth_scale_m != sensor.depth_scale_m:
-            raise ScannerError(
-                f"depth unit {capture.depth_scale_m} m differs from the device model's "
-                f"{sensor.depth_scale_m} m"
-            )
-        cloud = view_rgbd_cloud(sensor, capture.depth, capture.left, X_WC, centre, radius)
-        view = ViewCloud(index, cloud.points_C, cloud.colors, X_WF, cloud.depth, capture.stamp_s)
-        return view, capture.q_rad
-    if capture.left.shape[1::-1] != sensor.image_size:
-        raise ScannerError(
-            f"image size {capture.left.shape[1::-1]} differs from the camera model's"
-        )
-    cloud = view_cloud(sensor, capture.left, capture.right, X_WC, centre, radius, params)
-    depth = depth_image(sensor, cloud)
-    view = ViewCloud(index, cloud.points_C, cloud.colors, X_WF, depth, capture.stamp_s)
+    cloud = sensor.cloud(ready.prepared, capture, X_WC, centre, radius, params)
+    view = ViewCloud(index, cloud.points_C, cloud.colors, X_WF, cloud.depth, capture.stamp_s)
     return view, capture.q_rad
 
 
@@ -225,7 +218,7 @@ def gather_views(
         X = scan.X_FC_nominal if X_FC is None else X_FC
         captured = capture_views(
             scan,
-            prepare_sensor(camera),
+            prepare_sensor(scan, camera),
             X,
             processing.stereo,
             ready=ready if k == 0 else None,
@@ -256,7 +249,7 @@ def model_so_far(
     model to plan more views on), and their camera centres."""
     processing = scan.config.processing
     config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
-    captured = capture_views(scan, prepare_sensor(stereo), X_FC, processing.stereo, indices)
+    captured = capture_views(scan, prepare_sensor(scan, stereo), X_FC, processing.stereo, indices)
     remove = geometry_filter(scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m)
     views, clouds, _ = filter_views(captured.views, X_FC, config.filter, remove)
     X_WC = [v.X_WF @ X_FC for v in views]

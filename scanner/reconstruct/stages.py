@@ -29,12 +29,12 @@ import numpy as np
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.stage_timer import StageTimer, cpu_seconds
 from reconstruction.common.yaml_files import yaml_text
-from reconstruction.depth.camera_model import sensor_words
 from reconstruction.outputs import export_files, save_outputs, summary
 from reconstruction.pipeline import ReconstructionInputs, ReconstructionResult, reconstruct_views
 from reconstruction.stereo.camera_model import StereoCamera
 from reconstruction.surfaces.export import export_record, prepare_exports
 from reconstruction.surfaces.topology import mesh_quality
+from robots.sensors import sensor_named
 from scanner.configs.scan import ProcessingConfig
 from scanner.configs.typed_yaml import load_yaml_file, to_dict
 from scanner.presentation.known_turns import (
@@ -293,7 +293,7 @@ def _reconstruct(
         result = reconstruct_views(inputs, on_stage)
 
     report: dict = {
-        "sensor": sensor_words(stereo or first.camera_model),
+        "sensor": sensor_named(first.sensor).describe(stereo or first.camera_model),
         "captures_used": len(views.views),
         "captures_skipped": views.skipped,
         "pairs_registered_while_scanning": result.pairs_before,

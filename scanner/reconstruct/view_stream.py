@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
-from reconstruction.depth.camera_model import camera_model_to_dict
 from reconstruction.registration.filtering import VIEW_THREADS, FilteredCloud, filter_view
 from reconstruction.registration.incremental import ArrivingPairs
 from reconstruction.registration.views import ViewCloud
+from robots.sensors import sensor_named
 from scanner.configs.typed_yaml import to_dict
 from scanner.reconstruct.scan_views import (
     capture_view,
@@ -50,7 +50,7 @@ def settings_key(scan: SavedScan, processing, X_FC: np.ndarray, stereo) -> tuple
         str(scan.root.resolve()),
         repr(to_dict(processing)),
         np.asarray(X_FC, float).tobytes(),
-        repr(camera_model_to_dict(stereo)),
+        repr(sensor_named(scan.sensor).model_to_dict(stereo)),
     )
 
 
@@ -93,7 +93,7 @@ class ViewStream:
         self._config = with_roi_centre(
             processing.reconstruction, np.array(scan.config.scan_center_m)
         )
-        self._sensor = prepare_sensor(scan.camera_model)
+        self._sensor = prepare_sensor(scan, scan.camera_model)
         self._joints: dict[int, np.ndarray] = {}
         self._remove = geometry_filter(
             scan.config,

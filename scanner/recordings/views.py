@@ -33,6 +33,7 @@ from reconstruction.working_volume.volume import (
     volume_from_common_view,
     volume_from_masks,
 )
+from robots.sensors import sensor_named
 from scanner.recordings.settings import RecordingProcessing
 from scanner.scan_dir.manifest import SavedScan
 
@@ -68,10 +69,11 @@ def read_recorded_views(scan: SavedScan) -> RecordedViews:
     """Every capture of an imported recording; a damaged one is an error naming it (a
     recording is imported whole and checked, so damage is not a view to skip)."""
     indices, images, masks, cameras, X_WC, X_WF, depths, scales = ([] for _ in range(8))
+    files = sensor_named(scan.sensor).capture_format  # mono: one image, its camera and pose
     for index in scan.store.captured_indices():
         capture = scan.store.read_capture(index)
-        if capture.sensor != "mono":
-            raise ScannerError(f"{scan.root}: capture {index} is {capture.sensor}, not mono")
+        if capture.sensor != files:
+            raise ScannerError(f"{scan.root}: capture {index} is {capture.sensor}, not {files}")
         indices.append(index)
         images.append(capture.left)
         masks.append(None if capture.mask is None else capture.mask > 0)

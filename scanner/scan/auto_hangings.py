@@ -90,7 +90,7 @@ class HangingAssessor:
             done = {i: streamed[i].cloud for i in ready if streamed[i].cloud is not None}
         X_FC, stereo = scan.X_FC_nominal, scan.camera_model
         captured = capture_views(
-            scan, prepare_sensor(stereo), X_FC, processing.stereo, indices, ready
+            scan, prepare_sensor(scan, stereo), X_FC, processing.stereo, indices, ready
         )
         remove = geometry_filter(
             scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m

@@ -10,19 +10,14 @@ from pathlib import Path
 import numpy as np
 
 from planners.planner import Planner
-from reconstruction.calibration.file import calibrated_model, load_calibration
+from reconstruction.calibration.file import load_calibration
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import transform_points
-from reconstruction.depth.camera_model import CameraModel, RgbdCamera
-from reconstruction.depth.cloud import view_rgbd_cloud
-from reconstruction.stereo.camera_model import StereoCamera
-from reconstruction.stereo.cloud import view_cloud
-from reconstruction.stereo.params import disparity_window, object_depth_window
-from reconstruction.stereo.rectification import compute_rectification
+from reconstruction.depth.camera_model import CameraModel
 from robots.arms.arm import Arm
 from robots.arms.default import DEFAULT_ROBOT, arm_of
 from robots.cache import cache_dir
-from robots.drivers.connect import close_all, connect_robot, open_camera, open_depth_camera
+from robots.drivers.connect import close_all, connect_robot
 from robots.drivers.interfaces import (
     DepthCameraDriver,
     Hardware,
@@ -31,13 +26,14 @@ from robots.drivers.interfaces import (
     TurntableDriver,
     load_hardware,
 )
-from robots.models import camera_tool
 from robots.models.workcell import (
     Workcell,
     build_workcell,
     check_presentation,
     keep_out_radius_m,
 )
+from robots.sensors import Sensor, sensor_named
+from robots.sensors.registry import open_camera_of
 from robots.simulation.cell import (
     Simulation,
     camera_at_reported_joints,
@@ -128,19 +124,21 @@ def software_kinematics(config: ScanConfig):
 
 
 def software_camera(config: ScanConfig) -> tuple[CameraModel, np.ndarray]:
-    """The camera model and X_FC the software believes: the calibration file's, else nominal.
-    An RGB-D device keeps its own depth camera and extrinsics; a calibration gives X_FC and
-    its colour camera."""
-    if config.sensor == "rgbd":
-        model = config.rgbd.rgbd_camera()
-        X_FC = camera_tool.rig_X_FC(model.X_CR)
-    else:
-        model = config.camera.stereo_camera()
-        X_FC = camera_tool.nominal_X_FC(model.baseline_m)
+    """The camera model and X_FC the software believes: the calibration file's, else the
+    sensor's nominal ones (robots.sensors: an RGB-D device keeps its own depth camera and
+    extrinsics; a calibration gives X_FC and its colour camera)."""
+    sensor = sensor_of_config(config)
+    model = sensor.nominal_model(config)
+    X_FC = sensor.nominal_X_FC(model)
     if not config.calibration_file:
         return model, X_FC
     calibration = load_calibration(Path(config.calibration_file))
-    return calibrated_model(model, calibration, config.calibration_file), calibration.X_FC
+    return sensor.calibrated_model(model, calibration, config.calibration_file), calibration.X_FC
+
+
+def sensor_of_config(config: ScanConfig) -> Sensor:
+    """The sensor kind the configuration's `sensor:` names."""
+    return sensor_named(config.sensor, scanning=True)
 
 
 def check_reach(config: ScanConfig, model: CameraModel) -> None:
@@ -151,39 +149,7 @@ def check_reach(config: ScanConfig, model: CameraModel) -> None:
             f"views.radius_m: {config.views.radius_m} m puts the camera inside the object's "
             f"bounding sphere ({radius:.3f} m for a {config.cell.object_size_m} m object)"
         )
-    if isinstance(model, RgbdCamera):
-        z_min, z_max = object_depth_window(config.views.radius_m, radius)
-        if z_min < model.min_depth_m or z_max > model.max_depth_m:
-            raise ScannerError(
-                f"views.radius_m: at {config.views.radius_m} m the object spans depths "
-                f"{z_min:.3f}-{z_max:.3f} m; the depth camera measures "
-                f"{model.min_depth_m}-{model.max_depth_m} m (rgbd.min_depth_m, max_depth_m)"
-            )
-        return
-    check_stereo_reach(config, model)
-
-
-def check_stereo_reach(config: ScanConfig, stereo: StereoCamera) -> None:
-    """Refuse, before moving, a standoff at which the stereo camera cannot measure the object.
-
-    Left-image columns below min_disparity + num_disparities have no match in the right image;
-    the remaining band must hold at least half the object's image (its bounding sphere's image
-    radius f r / d), else most of the object is never measured.
-    """
-    radius = keep_out_radius_m(config.cell)
-    rect = compute_rectification(stereo)
-    z_min, z_max = object_depth_window(config.views.radius_m, radius)
-    min_d, num_d = disparity_window(z_min, z_max, rect.focal_px, rect.baseline_m)
-    width = rect.image_size[0]
-    usable_px = width - (min_d + num_d)
-    needed_px = rect.focal_px * radius / config.views.radius_m
-    if usable_px < needed_px:
-        raise ScannerError(
-            f"views.radius_m: at {config.views.radius_m} m the object spans depths "
-            f"{z_min:.3f}-{z_max:.3f} m (disparities {min_d}-{min_d + num_d} px): only "
-            f"{max(usable_px, 0)} px of the {width} px wide image can be matched, less than half "
-            f"the object's image ({needed_px:.0f} px); use a larger radius"
-        )
+    sensor_of_config(config).check_reach(model, config.views.radius_m, radius)
 
 
 def simulated_cell(
@@ -191,20 +157,20 @@ def simulated_cell(
 ) -> Simulation:
     """The true simulated world of a scan: its object, error model and sensor design
     (`X_WO`: where the operator hung the object for this hanging, when it is known)."""
+    sensor = sensor_of_config(config)
     design = config.camera.stereo_camera()
-    rgbd = config.rgbd.rgbd_camera() if config.sensor == "rgbd" else None
-    X_FC = camera_tool.rig_X_FC(rgbd.X_CR) if rgbd else camera_tool.nominal_X_FC(design.baseline_m)
     return create_simulation(
         config.cell,
         config.object,
         config.error_model,
         design,
-        X_FC,
+        sensor.nominal_X_FC(sensor.nominal_model(config)),
         arm=arm_of(config.robot),
         meshcat=meshcat,
         hanging=hanging,
         X_WO=X_WO,
-        rgbd=rgbd,
+        rgbd=sensor.true_device(config),
+        device=sensor.simulated_device,
         presentation=config.presentation,
     )
 
@@ -221,7 +187,7 @@ def setup_world(
     sim = hardware = None
     if config.driver or config.hardware is not None:
         if config.driver:
-            hardware = load_hardware(config.driver, config)
+            hardware = load_hardware(config.driver, config, sensor_of_config(config))
         else:
             hardware, sim = connect_cell(config, model, meshcat, hanging, X_WO)
         if config.auto_hangings and hardware.request_rehang is None and sim is None:
@@ -252,10 +218,8 @@ def setup_world(
         planner_cell, X_FC, model.X_CR, replace(config.planner, cache_dir=roadmaps), arm
     )
     if hardware:
-        device_model = getattr(hardware.camera, "rgbd_camera", None)
-        if device_model is not None:
-            calibrated = model if config.calibration_file else None
-            model = device_model_as_calibrated(device_model(), calibrated)
+        calibrated = model if config.calibration_file else None
+        model = sensor_of_config(config).driver_model(hardware.camera, model, calibrated)
         shown = sim.workcell if sim is not None else planner_cell
         return ScanWorld(
             hardware.robot,
@@ -271,22 +235,6 @@ def setup_world(
     return ScanWorld(sim.robot, sim.camera, planner, model, X_FC, sim, sim.workcell)
 
 
-def device_model_as_calibrated(device: RgbdCamera, calibrated: RgbdCamera | None) -> RgbdCamera:
-    """A real depth camera's model is what the device reports (its intrinsics, depth unit,
-    depth aligned to colour); a calibration adds its depth correction and its colour
-    intrinsics (the aligned depth lies on the colour grid)."""
-    if calibrated is None:
-        return device
-    model = replace(device, depth_correction=calibrated.depth_correction)
-    if calibrated.image_size != device.image_size:
-        raise ScannerError(
-            f"calibration_file: calibrated for {calibrated.image_size[0]}x"
-            f"{calibrated.image_size[1]} colour images, the camera delivers "
-            f"{device.image_size[0]}x{device.image_size[1]}"
-        )
-    return replace(model, color=calibrated.color, depth=calibrated.color)
-
-
 def connect_cell(
     config: ScanConfig, model: CameraModel, meshcat, hanging: int, X_WO: np.ndarray | None
 ) -> tuple[Hardware, Simulation | None]:
@@ -297,18 +245,7 @@ def connect_cell(
         if config.hardware.camera.kind == "simulated":
             sim = simulated_cell(config, meshcat, hanging, X_WO)
             return Hardware(robot, camera_at_reported_joints(sim, robot)), sim
-        kind = config.hardware.camera.kind
-        wanted = "rgbd" if kind == "realsense" else "stereo"
-        if config.sensor != wanted:
-            what = "an RGB-D camera (sensor: rgbd)" if wanted == "rgbd" else "a stereo camera"
-            raise ScannerError(
-                f"hardware.camera.kind: '{kind}' is {what}; the configuration's sensor is "
-                f"{config.sensor}"
-            )
-        if kind == "realsense":
-            camera = open_depth_camera(config.hardware.camera)
-        else:
-            camera = open_camera(config.hardware.camera, model.image_size)
+        camera = open_camera_of(config.hardware.camera, sensor_of_config(config), model)
     except BaseException:
         close_all(robot)
         raise
@@ -341,22 +278,13 @@ def live_cloud(live, config: ScanConfig, model: CameraModel, X_FC: np.ndarray):
     growing cloud in Meshcat, placed by the kinematic pose and the nominal X_FC."""
     centre = np.array(config.scan_center_m)
     radius = keep_out_radius_m(config.cell)
-    if isinstance(model, RgbdCamera):
-
-        def cloud_of(capture, X_WC):
-            c = view_rgbd_cloud(model, capture.depth, capture.left, X_WC, centre, radius, 4)
-            return c.points_C, c.colors
-    else:
-        rect = compute_rectification(model)
-        params = replace(config.processing.stereo, subsample_step_px=4)
-
-        def cloud_of(capture, X_WC):
-            c = view_cloud(rect, capture.left, capture.right, X_WC, centre, radius, params)
-            return c.points_C, c.colors
+    sensor = sensor_of_config(config)
+    prepared = sensor.prepare(model)
+    params = config.processing.stereo
 
     def process(capture) -> None:
         X_WC = capture.X_WF @ X_FC
-        points_C, colors = cloud_of(capture, X_WC)
-        live.add_cloud(f"{capture.pose_index:04d}", transform_points(X_WC, points_C), colors)
+        c = sensor.cloud(prepared, capture, X_WC, centre, radius, params, step_px=4)
+        live.add_cloud(f"{capture.pose_index:04d}", transform_points(X_WC, c.points_C), c.colors)
 
     return process

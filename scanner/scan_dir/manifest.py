@@ -19,12 +19,9 @@ import numpy as np
 from planners.ik import Viewpoint
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import check_pose
-from reconstruction.depth.camera_model import (
-    CameraModel,
-    camera_model_from_dict,
-    camera_model_to_dict,
-)
+from reconstruction.depth.camera_model import CameraModel
 from robots.arms.default import arm_of, is_arm_file
+from robots.sensors import sensor_named
 from scanner.configs.scan import ScanConfig, scan_config_from_dict, scan_config_to_dict
 from scanner.scan_dir.captures import CaptureStore
 from scanner.scan_dir.views import PlannedView, ViewOption
@@ -91,7 +88,7 @@ def new_manifest(
     return {
         "object": config.object,
         "config": scan_config_to_dict(config),
-        "camera": camera_model_to_dict(camera_model),
+        "camera": sensor_named(config.sensor).model_to_dict(camera_model),
         "X_FC_nominal": X_FC.tolist(),
         "robot": robot_entry(config.robot),
         "pose_count": len(views),
@@ -241,11 +238,13 @@ def open_scan(scan_dir: Path) -> SavedScan:
     hanging = manifest.get("hanging", 0)
     if not isinstance(hanging, int) or not 0 <= hanging < len(hangings):
         raise ScannerError(f"{where}: hanging must be a pass number below {len(hangings)}")
+    config = scan_config_from_dict(manifest["config"], f"{where}:config")
     return SavedScan(
         store,
         manifest,
-        scan_config_from_dict(manifest["config"], f"{where}:config"),
-        camera_model_from_dict(manifest["camera"], f"{where}:camera"),
+        config,
+        # The configuration's sensor kind reads its camera-model file.
+        sensor_named(config.sensor).model_from_dict(manifest["camera"], f"{where}:camera"),
         check_pose(manifest["X_FC_nominal"], f"{where}:X_FC_nominal"),
         tuple(views),
         hangings,
