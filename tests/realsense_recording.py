@@ -10,6 +10,7 @@ it by serial. Playback runs in real time and does not loop.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -117,3 +118,15 @@ class Loaded:
 def load(path: Path) -> Loaded:
     context = rs.context(SOFTWARE_ONLY)
     return Loaded(context, context.load_device(str(path)))
+
+
+def release(loaded: Loaded) -> None:
+    """The playback paused and taken out of its context, then dropped before the context, in
+    this order, rather than by the garbage collector in either order while the playback's
+    reader could still run (which aborted the process now and then under load)."""
+    with contextlib.suppress(RuntimeError):
+        loaded.playback.pause()
+    with contextlib.suppress(RuntimeError):
+        loaded.context.unload_device(loaded.playback.file_name())
+    loaded.playback = None
+    loaded.context = None
