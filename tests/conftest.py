@@ -49,6 +49,9 @@ LONGEST_FIRST = (
     "test_cell_monitor.py",  # 21
     "test_reconstruction_handeye.py",  # 20
     "test_recording_reconstruction.py",  # 20
+    "test_turntable_scan.py",  # 24
+    "test_presentation.py",  # 20
+    "test_sensor_plugins.py",  # 14
 )
 
 
