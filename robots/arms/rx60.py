@@ -265,7 +265,9 @@ def arm_model(robot: RX60 = RX60()) -> ArmModel:
         arm = robot.with_length_corrections(dict(zip(fields, p[6:]))) if np.any(p[6:]) else robot
         return fk_flange(arm, np.asarray(q, float) + p[:6])
 
-    return ArmModel(flange_pose, fields, tuple(LINK_LENGTHS.values()))
+    return ArmModel(
+        flange_pose, fields, tuple(LINK_LENGTHS.values()), ROBOT_MODEL_NAME, len(robot.joint_names)
+    )
 
 
 def _arm_branches(robot: RX60, p_WW: np.ndarray) -> list[tuple[float, float, float]]:
@@ -366,6 +368,9 @@ def rx60_arm(robot: RX60 = RX60()) -> Arm:
         identity=repr(robot),
         accuracy_m=ACCURACY_M,
         repeatability_m=REPEATABILITY_M,
+        # The closed form, not a chain read from the URDF: the same kinematics, and the RX60's
+        # link lengths by their datasheet names.
+        error_model=lambda: arm_model(robot),
         # The wrist sphere is centred on the J6 axis: its distance to anything on the flange is a
         # constant 6 mm, which any planning padding >= 6 mm would turn into a permanent false
         # self-collision. (Parent/child pairs are filtered by the plant; this pair is two joints

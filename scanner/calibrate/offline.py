@@ -78,6 +78,9 @@ class OfflineOptions:
     pose_file: Path | None = None
     pose_suffix: str = ".txt"
     intrinsics: Path | None = None
+    # The arm that made the poses, as a configuration's `robot` (None: the one a calibration
+    # directory records, else the RX60).
+    robot: str | None = None
 
 
 def load_intrinsics(path: Path) -> StereoCamera | PinholeCamera:
@@ -364,7 +367,8 @@ def calibrate_directory(
         # 10 stations: X_FC 2.35 mm and the depth scale 0.58 % off with calibrated
         # intrinsics, 0.26 mm and 0.012 % with the device's own).
         intrinsics = device.color
-    solution = solve(board, observations, size, settings, intrinsics, source)
+    robot = options.robot or (manifest.get("robot") if is_store else None) or "rx60"
+    solution = solve(board, observations, size, settings, intrinsics, source, robot)
     problems = implausible_figures(solution.hand_eye, settings, solution.calibration.stereo)
     if problems:
         hint = "" if is_store else _convention_hint(root, options, solution, settings)
