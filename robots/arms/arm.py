@@ -18,7 +18,7 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import ModelInstanceIndex
 
-from reconstruction.calibration.joint_chain import chain_arm_model
+from reconstruction.calibration.joint_chain import JointChain, chain_arm_model
 from reconstruction.calibration.robot_errors import ArmModel
 from robots.arms.arm_file import ArmFile, read_arm_file
 from robots.arms.chain import joint_chain
@@ -51,7 +51,8 @@ class Arm:
     repeatability. `home`: where a simulated arm starts and a scan begins, collision-free in the
     work cell (None: the middle of every joint's range; see `home_q`). `error_model()`: its
     kinematics with the error parameters a calibration estimates (joint zero offsets, link
-    lengths; reconstruction/calibration/robot_errors.py), `arm_name` set to `name`."""
+    lengths; reconstruction/calibration/robot_errors.py), `arm_name` set to `name`. `chain`:
+    its joints as numbers (each joint's fixed transform from the previous one and its axis)."""
 
     name: str
     joint_names: tuple[str, ...]
@@ -68,6 +69,7 @@ class Arm:
     accuracy_m: float
     repeatability_m: float
     error_model: Callable[[], ArmModel]
+    chain: JointChain
     tool_filtered_links: tuple[str, ...] = ()
     home: tuple[float, ...] | None = None
 
@@ -128,6 +130,7 @@ def arm_from_plant(arm_file: ArmFile, plant: ArmPlant, model: tuple[str, str]) -
         accuracy_m=arm_file.accuracy_m,
         repeatability_m=arm_file.repeatability_m,
         error_model=lambda: chain_arm_model(chain),
+        chain=chain,
         home=arm_file.home_q_rad,
     )
 
