@@ -54,7 +54,7 @@ class ScanMonitor:
     def __init__(self, settings: MonitorSettings) -> None:
         self.settings = settings
         self.paths = intruder_paths(settings)
-        self.kinematics = Kinematics()
+        self.kinematics: Kinematics | None = None  # the scanning arm's, from the first world
         self.monitors: list[CellMonitor] = []
         self.cameras: list[MonitoredCamera] = []
         self.robots: list[MonitoredRobot] = []
@@ -73,6 +73,9 @@ class ScanMonitor:
             world.sim, self.settings.camera, self.paths, self.settings.detection.fps
         )
         video.clock_s = self.clock_s
+        if self.kinematics is None:
+            # The tracker compares the tool it sees with the scanning arm's own kinematics.
+            self.kinematics = Kinematics(world.planner.arm)
         monitor = CellMonitor(video, self.settings, self.kinematics.X_WF)
         monitor.warm_up(world.robot.joint_positions())
         self.monitors.append(monitor)
