@@ -131,6 +131,8 @@ class Workcell:
     config: WorkcellConfig
     has_renderer: bool
     has_object: bool = True
+    # The arm's flange frame F in `robot` (where X_FC is measured from).
+    flange_frame: str = "tool0"
 
     @property
     def plant(self) -> MultibodyPlant:
@@ -347,4 +349,4 @@ def build_workcell(
             meshcat,
             MeshcatVisualizerParams(prefix=meshcat_prefix),
         )
-    return Workcell(builder.Build(), instance, config, renderer, include_object)
+    return Workcell(builder.Build(), instance, config, renderer, include_object, arm.flange_frame)
