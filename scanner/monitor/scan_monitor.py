@@ -10,6 +10,8 @@ import math
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
+from robots.arms.arm import Arm
+from robots.arms.default import DEFAULT_ARM
 from robots.models.kinematics import Kinematics
 from scanner.monitor.cell_monitor import CellMonitor, MonitorSettings
 from scanner.monitor.ee_tracker import tracking_errors
@@ -51,10 +53,11 @@ def intruders_truth(settings: MonitorSettings) -> list[dict]:
 
 
 class ScanMonitor:
-    def __init__(self, settings: MonitorSettings) -> None:
+    def __init__(self, settings: MonitorSettings, arm: Arm = DEFAULT_ARM) -> None:
         self.settings = settings
         self.paths = intruder_paths(settings)
-        self.kinematics: Kinematics | None = None  # the scanning arm's, from the first world
+        # The tracker compares the tool it sees with the scanning arm's own kinematics.
+        self.kinematics = Kinematics(arm)
         self.monitors: list[CellMonitor] = []
         self.cameras: list[MonitoredCamera] = []
         self.robots: list[MonitoredRobot] = []
@@ -73,9 +76,6 @@ class ScanMonitor:
             world.sim, self.settings.camera, self.paths, self.settings.detection.fps
         )
         video.clock_s = self.clock_s
-        if self.kinematics is None:
-            # The tracker compares the tool it sees with the scanning arm's own kinematics.
-            self.kinematics = Kinematics(world.planner.arm)
         monitor = CellMonitor(video, self.settings, self.kinematics.X_WF)
         monitor.warm_up(world.robot.joint_positions())
         self.monitors.append(monitor)
