@@ -85,10 +85,13 @@ def _case(
     hangings: int | str,
     operator: str,
     presentation: str = "hanging",
+    base: ScanConfig | None = None,
 ) -> dict:
+    """One whole-object scan of benchmark mesh `name` (or a built-in object by its name) on
+    `base` (default: the default configuration), and its figures."""
     config = with_overrides(
-        ScanConfig(),
-        object_spec=str(MESHES / FILES[name]),
+        base or ScanConfig(),
+        object_spec=str(MESHES / FILES[name]) if name in FILES else name,
         size_m=0.2,
         seed=seed,
         hangings=hangings,

@@ -136,12 +136,12 @@ def test_calibrate_refuses_a_bad_robot_flag_in_one_line(tmp_path, capfd):
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
 
 
-def test_the_robot_error_model_is_refused_for_another_arm():
+def test_the_robot_error_model_is_the_configured_arms():
     from reconstruction.calibration.settings import CalibrationSettings
     from scanner.calibrate.config import CalibrateConfig
 
-    with pytest.raises(ScannerError, match="^solver.robot_offsets: .* RX60 only"):
-        CalibrateConfig(robot=str(UR5E_FILE), solver=CalibrationSettings(robot_offsets=True))
+    config = CalibrateConfig(robot=str(UR5E_FILE), solver=CalibrationSettings(robot_offsets=True))
+    assert arm_of(config.robot).error_model().arm_name == "ur5e"
 
 
 def test_the_calibration_cell_is_built_for_the_configured_arm():
@@ -154,11 +154,10 @@ def test_the_calibration_cell_is_built_for_the_configured_arm():
     assert world.is_free(world.robot.joint_positions())
 
 
-def test_a_calibration_with_the_rx60s_own_errors_is_refused_for_another_arms_scan(
-    ur5e_scan, tmp_path
-):
+def test_a_calibration_with_another_arms_own_errors_is_refused_for_a_scan(ur5e_scan, tmp_path):
     """Joint offsets and link lengths estimated for the RX60 would move another arm's flange
-    poses by another chain's kinematics: refused in one line before anything is written."""
+    poses by another chain's kinematics: refused in one line before anything is written (the
+    same arm's are accepted: test_arm_errors.py)."""
     from reconstruction.calibration.file import Calibration, RobotCorrection, save_calibration
     from scanner.configs.scan import ScanConfig
     from scanner.reconstruct.command import ReconstructOptions, reconstruct_one
@@ -169,6 +168,6 @@ def test_a_calibration_with_the_rx60s_own_errors_is_refused_for_another_arms_sca
         Calibration(np.eye(4), stereo, stereo.left, robot=robot), tmp_path / "c.yaml"
     )
     out = tmp_path / "out"
-    with pytest.raises(ScannerError, match="joint offsets and link lengths are the RX60's"):
+    with pytest.raises(ScannerError, match="joint offsets and link lengths are arm rx60's"):
         reconstruct_one(ur5e_scan.scan_dir, ReconstructOptions(calibration=path, out=out))
     assert not out.exists()

@@ -18,6 +18,7 @@ from reconstruction.calibration.file import (
 )
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import pose_difference
+from robots.arms.default import DEFAULT_ARM
 from robots.arms.rx60 import RX60
 from robots.models.kinematics import Kinematics, corrected_kinematics
 from robots.simulation.cell import HOME_Q
@@ -42,7 +43,7 @@ def test_the_file_carries_the_robot_correction(tmp_path):
 @pytest.mark.parametrize(
     "robot, message",
     [
-        ({"joint_offsets_rad": [0.0] * 5}, "robot.joint_offsets_rad: expected 6 offsets"),
+        ({"joint_offsets_rad": []}, "robot.joint_offsets_rad: expected one offset per joint"),
         ({"joint_offsets_rad": [0.1] * 6}, "within +-1 deg"),
         (
             {"joint_offsets_rad": [0.0] * 6, "link_length_corrections_m": {"forearm_m": 0.05}},
@@ -87,13 +88,15 @@ def test_a_scan_with_the_correction_computes_poses_closer_to_the_truth(tmp_path)
 
 
 def test_corrected_link_lengths_move_the_flange_as_the_closed_form_arm():
-    from robots.arms.rx60 import arm_model
+    from robots.arms.rx60 import arm_model, rx60_arm
 
     arm = arm_model()
     p = np.zeros(arm.size)
     p[:6] = [1e-4, -2e-4, 3e-4, 0.0, 1e-4, 0.0]
     p[6 + list(arm.length_keys).index("forearm_m")] = 4e-4
-    X_WF = corrected_kinematics(p[:6], {"forearm_m": 4e-4})
+    X_WF = corrected_kinematics(
+        rx60_arm(), RobotCorrection(tuple(p[:6]), {"forearm_m": 4e-4}), "calibration_file"
+    )
     q = np.asarray(HOME_Q, float) + 0.2
     assert np.allclose(X_WF(q), arm.flange_pose(q, p), atol=1e-12)
 
@@ -106,7 +109,8 @@ def test_a_reconstruction_with_the_correction_recomputes_the_capture_poses(tiny_
     capture = scan.store.read_capture(index)
     assert np.array_equal(scan.X_WF(capture), capture.X_WF)
     offsets = (0.0, 1e-3, 0.0, 0.0, 0.0, 0.0)
-    corrected = replace(scan, flange_pose=corrected_kinematics(offsets, {}))
+    correction = RobotCorrection(offsets, {})
+    corrected = replace(scan, flange_pose=corrected_kinematics(DEFAULT_ARM, correction, "x"))
     expected = Kinematics().X_WF(capture.q_rad + np.array(offsets))
     assert np.allclose(corrected.X_WF(capture), expected, atol=1e-12)
     assert pose_difference(corrected.X_WF(capture), capture.X_WF)[0] > 1e-4

@@ -11,7 +11,8 @@ YAML, SI units (metres, radians, pixels for intrinsics), one key per quantity:
     X_WB: [[...]]                               # board in the robot base (information)
     board: {kind: chessboard, cols: 10, rows: 7, spacing_m: 0.02, ...}
     robot:                                      # the arm's own errors (--robot-offsets), or null
-      joint_offsets_rad: [d1, ..., d6]          # true joint = reported + offset
+      arm: rx60                                 # the arm they belong to (absent: rx60)
+      joint_offsets_rad: [d1, ..., dn]          # true joint = reported + offset, one per joint
       link_length_corrections_m: {upper_arm_m: 0.0003, ...}   # true length = drawn + this
     quality:                                    # what the calibration measured
       reprojection_rms_px: 0.12
@@ -54,17 +55,21 @@ MAX_LENGTH_CORRECTION_M = 0.005
 @dataclass(frozen=True)
 class RobotCorrection:
     """The arm's own errors a calibration found: the joints' zero offsets (rad, true = reported
-    + offset) and corrections of link lengths (m, by the arm model's field names). A scan with
-    this calibration computes its flange poses from the corrected arm."""
+    + offset, one per joint) and corrections of link lengths (m, by the arm model's keys), of
+    the arm named `arm`. A scan of that arm with this calibration computes its flange poses
+    from the corrected arm; a scan of another arm cannot use them."""
 
     joint_offsets_rad: tuple[float, ...] = (0.0,) * 6
     link_length_corrections_m: dict[str, float] = field(default_factory=dict)
+    # Files written before the record named its arm hold the RX60's errors: the only arm whose
+    # errors were modelled then.
+    arm: str = "rx60"
 
     def __post_init__(self) -> None:
         offsets = tuple(float(v) for v in self.joint_offsets_rad)
-        if len(offsets) != 6 or not all(abs(v) <= MAX_JOINT_OFFSET_RAD for v in offsets):
+        if not offsets or not all(abs(v) <= MAX_JOINT_OFFSET_RAD for v in offsets):
             raise ScannerError(
-                "robot.joint_offsets_rad: expected 6 offsets within +-1 deg, got "
+                "robot.joint_offsets_rad: expected one offset per joint within +-1 deg, got "
                 f"{list(self.joint_offsets_rad)!r}"
             )
         lengths = {str(k): float(v) for k, v in dict(self.link_length_corrections_m).items()}
@@ -75,9 +80,12 @@ class RobotCorrection:
             )
         object.__setattr__(self, "joint_offsets_rad", offsets)
         object.__setattr__(self, "link_length_corrections_m", lengths)
+        if not isinstance(self.arm, str) or not self.arm:
+            raise ScannerError(f"robot.arm: expected the arm's name, got {self.arm!r}")
 
     def as_dict(self) -> dict:
         return {
+            "arm": self.arm,
             "joint_offsets_rad": list(self.joint_offsets_rad),
             "link_length_corrections_m": dict(self.link_length_corrections_m),
         }
@@ -93,6 +101,7 @@ def robot_correction_from_dict(d) -> RobotCorrection | None:
         return RobotCorrection(
             tuple(d.get("joint_offsets_rad", (0.0,) * 6)),
             dict(d.get("link_length_corrections_m") or {}),
+            d.get("arm", "rx60"),
         )
     except (TypeError, ValueError) as e:
         raise ScannerError(f"robot: malformed ({e})") from None

@@ -42,36 +42,47 @@ from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera
 @dataclass(frozen=True, eq=False)
 class ArmModel:
     """An arm's kinematics with error parameters p: flange_pose(q, p) is the flange pose X_WF
-    for the reported joints q. p[:6] are the joints' zero offsets (rad; true = reported +
-    offset), p[6:] corrections of the links `length_keys` (m; their words `length_words`);
-    p = 0 is the arm as drawn, so flange_pose(q, 0) is what the controller reports."""
+    for the reported joints q. p[:joint_count] are the joints' zero offsets (rad; true =
+    reported + offset), the rest corrections of the links `length_keys` (m; their words
+    `length_words`); p = 0 is the arm as drawn, so flange_pose(q, 0) is what the controller
+    reports. `arm_name`: the arm these parameters belong to (a scan of another arm cannot use
+    them)."""
 
     flange_pose: Callable[[np.ndarray, np.ndarray], np.ndarray]
     length_keys: tuple[str, ...] = ()
     length_words: tuple[str, ...] = ()
+    arm_name: str = ""
+    joint_count: int = 6
 
     @property
     def size(self) -> int:
-        return 6 + len(self.length_keys)
+        return self.joint_count + len(self.length_keys)
+
+    def is_joint(self, k: int) -> bool:
+        return k < self.joint_count
 
     def name(self, k: int) -> str:
-        return f"joint {k + 1} zero" if k < 6 else self.length_words[k - 6]
+        if self.is_joint(k):
+            return f"joint {k + 1} zero"
+        return self.length_words[k - self.joint_count]
 
     def words(self, k: int, value: float, sigma: float) -> str:
-        if k < 6:
+        if self.is_joint(k):
             return f"{self.name(k)} {np.degrees(value):+.4f} +/- {np.degrees(sigma):.4f} deg"
         return f"{self.name(k)} {1e3 * value:+.3f} +/- {1e3 * sigma:.3f} mm"
+
+    def hidden_always(self, k: int) -> str | None:
+        """Why parameter k can never be told apart from the board pose and X_FC, if so."""
+        if k == 0:
+            return "it turns the whole arm about the base axis, as a turn of the board's pose would"
+        if k == self.joint_count - 1:
+            return "it turns the flange about its own axis, as a turn of X_FC would"
+        return None
 
 
 # How often the per-pose robot error left after the arm's parameters is measured and the fit
 # repeated (it settles within three rounds on the simulator, with or without link errors).
 REWEIGHT_ROUNDS = 3
-
-# Why joints 1 and 6 can never be told apart from the board pose and X_FC (0-based indices).
-_ALWAYS_HIDDEN = {
-    0: "it turns the whole arm about the base axis, as a turn of the board's pose would",
-    5: "it turns the flange about its own axis, as a turn of X_FC would",
-}
 
 
 def observable(
@@ -116,10 +127,9 @@ def observable(
         if independence[k] >= min_independence:
             break
         kept.remove(k)
-        reasons[k] = _ALWAYS_HIDDEN.get(
-            k,
+        reasons[k] = arm.hidden_always(k) or (
             f"these poses cannot tell it from X_FC, the board pose and the other parameters "
-            f"(independence {independence[k]:.3f}, need >= {min_independence:g})",
+            f"(independence {independence[k]:.3f}, need >= {min_independence:g})"
         )
     return tuple(kept), dict(sorted(reasons.items()))
 
@@ -155,18 +165,20 @@ class RobotErrors:
     note: str
     names: tuple[str, ...] = ()
     length_keys: tuple[str, ...] = ()
+    joint_count: int = 6
+    arm_name: str = ""
 
     @property
     def joint_offsets_rad(self) -> np.ndarray:
-        return self.params[:6]
+        return self.params[: self.joint_count]
 
     @property
     def link_length_corrections_m(self) -> dict[str, float]:
         """The estimated length corrections by the arm model's keys (only those estimated)."""
         return {
-            key: float(self.params[6 + i])
+            key: float(self.params[self.joint_count + i])
             for i, key in enumerate(self.length_keys)
-            if 6 + i in self.estimated
+            if self.joint_count + i in self.estimated
         }
 
     def as_dict(self) -> dict:
@@ -176,7 +188,7 @@ class RobotErrors:
         return {
             "estimated": [name(k) for k in self.estimated],
             "kept": self.kept,
-            "joint_offsets_rad": self.params[:6].tolist(),
+            "joint_offsets_rad": self.joint_offsets_rad.tolist(),
             "link_length_corrections_m": self.link_length_corrections_m,
             "sigma": {
                 name(k): float(self.sigma[k]) for k in self.estimated if np.isfinite(self.sigma[k])
@@ -196,6 +208,16 @@ def not_estimated(
     return RobotErrors(
         (), np.zeros(size), np.full(size, nan), not_observable or {}, nan, nan, False, note
     )
+
+
+def _arm_fields(arm: ArmModel) -> dict:
+    """The fields of RobotErrors that name the arm's parameters."""
+    return {
+        "names": tuple(arm.name(k) for k in range(arm.size)),
+        "length_keys": arm.length_keys,
+        "joint_count": arm.joint_count,
+        "arm_name": arm.arm_name,
+    }
 
 
 def _note(arm: ArmModel, outcome: RobotErrors, values: np.ndarray) -> str:
@@ -229,9 +251,9 @@ def estimate(
     if arm is None or any(o.q_rad is None for o in inliers):
         return refined, not_estimated(
             "robot errors not estimated: the poses carry no joint angles (only flange poses), "
-            "and the joint offsets need them; calibrated without them"
+            "and the joint offsets need them; calibrated without them",
+            6 if arm is None else arm.size,
         )
-    names = tuple(arm.name(k) for k in range(arm.size))
     found, hidden = observable(
         board,
         inliers,
@@ -241,18 +263,17 @@ def estimate(
         arm,
         settings.offset_min_independence,
     )
-    if not any(k < 6 for k in found):
-        why = "; ".join(f"{arm.name(k)}: {w}" for k, w in hidden.items() if k < 6)
+    if not any(arm.is_joint(k) for k in found):
+        why = "; ".join(f"{arm.name(k)}: {w}" for k, w in hidden.items() if arm.is_joint(k))
         outcome = not_estimated(
             f"robot errors not estimated: no joint's zero offset is observable from these "
-            f"{len(inliers)} poses ({why}); record poses that move joints 2-5 more, or "
+            f"{len(inliers)} poses ({why}); record poses that move joints 2-{arm.joint_count - 1} "
+            "more, or "
             "calibrate without --robot-offsets",
             arm.size,
             hidden,
         )
-        return refined, RobotErrors(
-            **{**outcome.__dict__, "names": names, "length_keys": arm.length_keys}
-        )
+        return refined, RobotErrors(**{**outcome.__dict__, **_arm_fields(arm)})
     joints = np.array([o.q_rad for o in inliers], float)
     zero = np.zeros(arm.size)
 
@@ -324,8 +345,7 @@ def estimate(
         with_.rms_px,
         kept,
         "",
-        names,
-        arm.length_keys,
+        **_arm_fields(arm),
     )
     outcome = RobotErrors(**{**outcome.__dict__, "note": _note(arm, outcome, values)})
     return (with_arm if kept else refined), outcome

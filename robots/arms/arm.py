@@ -18,7 +18,10 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import ModelInstanceIndex
 
+from reconstruction.calibration.joint_chain import JointChain, chain_arm_model
+from reconstruction.calibration.robot_errors import ArmModel
 from robots.arms.arm_file import ArmFile, read_arm_file
+from robots.arms.chain import joint_chain
 from robots.arms.general_ik import solve_ik
 from robots.arms.limits import within_limits
 from robots.arms.model import ArmPlant, add_arm_model, load_arm_plant, model_text
@@ -46,7 +49,10 @@ class Arm:
     distance to the tool cannot change with q would otherwise be a permanent false collision
     under the planning padding). accuracy_m / repeatability_m: the vendor's pose accuracy and
     repeatability. `home`: where a simulated arm starts and a scan begins, collision-free in the
-    work cell (None: the middle of every joint's range; see `home_q`)."""
+    work cell (None: the middle of every joint's range; see `home_q`). `error_model()`: its
+    kinematics with the error parameters a calibration estimates (joint zero offsets, link
+    lengths; reconstruction/calibration/robot_errors.py), `arm_name` set to `name`. `chain`:
+    its joints as numbers (each joint's fixed transform from the previous one and its axis)."""
 
     name: str
     joint_names: tuple[str, ...]
@@ -62,6 +68,8 @@ class Arm:
     identity: str
     accuracy_m: float
     repeatability_m: float
+    error_model: Callable[[], ArmModel]
+    chain: JointChain
     tool_filtered_links: tuple[str, ...] = ()
     home: tuple[float, ...] | None = None
 
@@ -104,6 +112,8 @@ def arm_from_plant(arm_file: ArmFile, plant: ArmPlant, model: tuple[str, str]) -
     def add_model(target: MultibodyPlant) -> ModelInstanceIndex:
         return add_arm_model(target, arm_file, *model)
 
+    chain = joint_chain(plant, arm_file.name)
+
     return Arm(
         name=arm_file.name,
         joint_names=plant.joint_names,
@@ -119,6 +129,8 @@ def arm_from_plant(arm_file: ArmFile, plant: ArmPlant, model: tuple[str, str]) -
         identity=repr(arm_file),
         accuracy_m=arm_file.accuracy_m,
         repeatability_m=arm_file.repeatability_m,
+        error_model=lambda: chain_arm_model(chain),
+        chain=chain,
         home=arm_file.home_q_rad,
     )
 

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from reconstruction.calibration.joint_chain import JointChain
 from reconstruction.calibration.robot_errors import ArmModel
 from robots.arms.limits import within_limits
 
@@ -265,7 +266,27 @@ def arm_model(robot: RX60 = RX60()) -> ArmModel:
         arm = robot.with_length_corrections(dict(zip(fields, p[6:]))) if np.any(p[6:]) else robot
         return fk_flange(arm, np.asarray(q, float) + p[:6])
 
-    return ArmModel(flange_pose, fields, tuple(LINK_LENGTHS.values()))
+    return ArmModel(
+        flange_pose, fields, tuple(LINK_LENGTHS.values()), ROBOT_MODEL_NAME, len(robot.joint_names)
+    )
+
+
+def rx60_chain(robot: RX60 = RX60()) -> JointChain:
+    """The chain of rx60_urdf in numbers: every joint frame parallel to the base's, J2/J3/J5
+    about +y, J1/J4/J6 about +z."""
+    h, a2, d3, a3 = (
+        robot.shoulder_height_m,
+        robot.upper_arm_m,
+        robot.elbow_offset_m,
+        robot.forearm_m,
+    )
+    origins = [(0, 0, 0), (0, 0, h), (0, d3, a2), (0, 0, a3), (0, 0, 0), (0, 0, 0)]
+    origins.append((0, 0, robot.wrist_to_flange_m))
+    X_MF = np.repeat(np.eye(4)[None], len(origins), axis=0)
+    X_MF[:, :3, 3] = origins
+    y, z = (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
+    axes = [z, y, y, z, y, z]
+    return JointChain(ROBOT_MODEL_NAME, robot.joint_names, FLANGE_FRAME, X_MF, axes, [True] * 6)
 
 
 def _arm_branches(robot: RX60, p_WW: np.ndarray) -> list[tuple[float, float, float]]:
@@ -366,6 +387,10 @@ def rx60_arm(robot: RX60 = RX60()) -> Arm:
         identity=repr(robot),
         accuracy_m=ACCURACY_M,
         repeatability_m=REPEATABILITY_M,
+        # The closed form, not a chain read from the URDF: the same kinematics, and the RX60's
+        # link lengths by their datasheet names.
+        error_model=lambda: arm_model(robot),
+        chain=rx60_chain(robot),
         # The wrist sphere is centred on the J6 axis: its distance to anything on the flange is a
         # constant 6 mm, which any planning padding >= 6 mm would turn into a permanent false
         # self-collision. (Parent/child pairs are filtered by the plant; this pair is two joints

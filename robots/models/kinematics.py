@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 from pydrake.multibody.plant import MultibodyPlant
 
+from reconstruction.calibration.file import RobotCorrection
+from reconstruction.common.errors import ScannerError
 from robots.arms.arm import Arm
 from robots.arms.default import DEFAULT_ARM
-from robots.arms.rx60 import RX60, rx60_arm
 
 
 class Kinematics:
@@ -29,9 +30,27 @@ class Kinematics:
         return self.X_WF(q) @ X_FC
 
 
-def corrected_kinematics(joint_offsets_rad, link_length_corrections_m: dict[str, float]):
-    """X_WF(q) of the RX60 with a calibration's joint zero offsets (true = reported + offset)
-    and link length corrections ({RX60 field: metres}) applied to the reported joints q."""
-    kinematics = Kinematics(rx60_arm(RX60().with_length_corrections(link_length_corrections_m)))
-    offsets = np.array(joint_offsets_rad, float)
-    return lambda q: kinematics.X_WF(np.asarray(q, float) + offsets)
+def corrected_kinematics(arm: Arm, correction: RobotCorrection, where: str):
+    """X_WF(q) (4x4) of `arm` with a calibration's joint zero offsets (true = reported +
+    offset) and link length corrections (by the arm's error model's keys) applied to the
+    reported joints q. ScannerError, one line starting with `where` (the file's field or flag),
+    when the correction is another arm's or does not fit this arm's parameters."""
+    if correction.arm != arm.name:
+        raise ScannerError(
+            f"{where}: its joint offsets and link lengths are arm {correction.arm}'s, this arm "
+            f"is {arm.name}: calibrate {arm.name} with --robot-offsets, or calibrate without it"
+        )
+    model = arm.error_model()
+    unknown = sorted(set(correction.link_length_corrections_m) - set(model.length_keys))
+    if len(correction.joint_offsets_rad) != model.joint_count or unknown:
+        raise ScannerError(
+            f"{where}: its robot correction does not fit arm {arm.name} (expected "
+            f"{model.joint_count} joint offsets and lengths among "
+            f"{', '.join(model.length_keys) or 'none'}; got "
+            f"{len(correction.joint_offsets_rad)} offsets, lengths {', '.join(unknown)})"
+        )
+    p = np.zeros(model.size)
+    p[: model.joint_count] = correction.joint_offsets_rad
+    for key, value in correction.link_length_corrections_m.items():
+        p[model.joint_count + model.length_keys.index(key)] = value
+    return lambda q: model.flange_pose(np.asarray(q, float), p)

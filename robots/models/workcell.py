@@ -79,8 +79,10 @@ class WorkcellConfig:
     """Where things are. Positions in the world (robot base) frame, metres."""
 
     # Measured: of the centres tried, here the most of a 0.5 m viewing sphere is reachable
-    # collision-free (12 %, a cap below the object, elevations -82..-13 deg).
-    object_center_m: tuple[float, float, float] = (0.40, 0.0, 1.00)
+    # collision-free (12 %, a cap below the object, elevations -82..-13 deg). None: laid out
+    # from the arm's reach before the cell is built (planners/reach.py; a scan of an arm file
+    # whose configuration names no centre).
+    object_center_m: tuple[float, float, float] | None = (0.40, 0.0, 1.00)
     object_size_m: float = 0.2
     object_yaw_rad: float = 0.0
     rod_radius_m: float = 0.004
@@ -89,7 +91,7 @@ class WorkcellConfig:
 
     def __post_init__(self) -> None:
         c = self.object_center_m
-        if len(c) != 3 or not all(math.isfinite(v) for v in c):
+        if c is not None and (len(c) != 3 or not all(math.isfinite(v) for v in c)):
             raise ScannerError(f"object_center_m: expected three finite numbers, got {c}")
         if not (math.isfinite(self.object_size_m) and 0 < self.object_size_m <= MAX_OBJECT_SIZE_M):
             raise ScannerError(
@@ -103,7 +105,7 @@ class WorkcellConfig:
             raise ScannerError(
                 f"object_yaw_rad: expected a finite angle, got {self.object_yaw_rad}"
             )
-        if not self.rod_top_z_m > c[2]:
+        if c is not None and not self.rod_top_z_m > c[2]:
             raise ScannerError(
                 f"rod_top_z_m: expected above the object centre ({c[2]} m), got {self.rod_top_z_m}"
             )
@@ -111,6 +113,8 @@ class WorkcellConfig:
     @property
     def X_WO(self) -> np.ndarray:
         """Pose of the object frame O in the world."""
+        if self.object_center_m is None:
+            raise ValueError("the cell's object centre is not laid out yet (scanner.scan.layout)")
         X = np.eye(4)
         cz, sz = math.cos(self.object_yaw_rad), math.sin(self.object_yaw_rad)
         X[:3, :3] = [[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]]
@@ -128,6 +132,8 @@ class Workcell:
     has_renderer: bool
     has_object: bool = True
     presentation: str = "hanging"  # what holds the object: the rod, or the turntable
+    # The arm's flange frame F in `robot` (where X_FC is measured from).
+    flange_frame: str = "tool0"
 
     @property
     def plant(self) -> MultibodyPlant:
@@ -370,4 +376,12 @@ def build_workcell(
             meshcat,
             MeshcatVisualizerParams(prefix=meshcat_prefix),
         )
-    return Workcell(builder.Build(), instance, config, renderer, include_object, presentation)
+    return Workcell(
+        builder.Build(),
+        instance,
+        config,
+        renderer,
+        include_object,
+        presentation,
+        arm.flange_frame,
+    )

@@ -143,7 +143,7 @@ class SimulatedStereoCamera(StereoCameraDriver):
         plant = self._cell.plant
         plant_context = plant.GetMyContextFromRoot(self._context)
         plant.SetPositions(plant_context, self._cell.robot, self._true_q())
-        flange = plant.GetFrameByName("tool0", self._cell.robot)
+        flange = plant.GetFrameByName(self._cell.flange_frame, self._cell.robot)
         return flange.CalcPoseInWorld(plant_context).GetAsMatrix4() @ self._truth.X_FC
 
     def _query(self):

@@ -98,12 +98,6 @@ class CalibrateConfig:
             raise ScannerError(
                 f"robot: expected 'rx60' or the path of an arm file, got {self.robot!r}"
             )
-        if self.solver.robot_offsets and self.robot != "rx60":
-            # The robot-error model (robots/arms/rx60.py arm_model) is the RX60's link lengths.
-            raise ScannerError(
-                f"solver.robot_offsets: the arm's own errors are modelled for the RX60 only, "
-                f"not for robot {self.robot}"
-            )
         if self.driver and self.hardware is not None:
             raise ScannerError(
                 "hardware: a calibration runs on --driver MODULE:FACTORY or on a hardware: "

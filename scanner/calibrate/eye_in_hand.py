@@ -249,7 +249,7 @@ def run_eye_in_hand(
     store.update_manifest(status="captured", skipped_stations=skipped)
     run = calibrate_directory(
         store.root,
-        OfflineOptions(board=config.board),
+        OfflineOptions(board=config.board, robot=config.robot),
         config.solver,
         extra_report={
             "stations_skipped": skipped,
@@ -299,6 +299,7 @@ def _start_run(
         "stations_reachable": plan.reachable,
         "stations_candidates": plan.candidates,
         "driver": config.driver,
+        "robot": config.robot,
     }
     store = CaptureStore.create(out_dir, manifest, force)
     if world.sim is not None:

@@ -79,6 +79,9 @@ class OfflineOptions:
     pose_file: Path | None = None
     pose_suffix: str = ".txt"
     intrinsics: Path | None = None
+    # The arm that made the poses, as a configuration's `robot` (None: the one a calibration
+    # directory records, else the RX60).
+    robot: str | None = None
 
 
 def load_intrinsics(path: Path) -> StereoCamera | PinholeCamera:
@@ -363,7 +366,8 @@ def calibrate_directory(
         # A device's factory intrinsics where the sensor keeps them (the model the run
         # recorded), else solved from the board.
         intrinsics = sensor.board_intrinsics(device)
-    solution = solve(board, observations, size, settings, intrinsics, source)
+    robot = options.robot or (manifest.get("robot") if is_store else None) or "rx60"
+    solution = solve(board, observations, size, settings, intrinsics, source, robot)
     problems = implausible_figures(solution.hand_eye, settings, solution.calibration.stereo)
     if problems:
         hint = "" if is_store else _convention_hint(root, options, solution, settings)

@@ -130,20 +130,20 @@ def render_free_observations(
 ) -> list[tuple[list[PoseObservation], np.ndarray, np.ndarray]]:
     """(observations, true X_FC, true joint offsets) per seed of `board_observations` at the
     stations `config` plans: its board where its placement puts it, its camera on the nominal
-    mount, stations reached by the RX60's IK from the simulated arm's home joints. With
-    `kinematic_error_m` the true arm's link lengths are off (`kinematic_error_robot`)."""
+    mount, stations reached by the IK of `config.robot` from the arm's home joints. With
+    `kinematic_error_m` the true RX60's link lengths are off (`kinematic_error_robot`)."""
     # Imported here: the calibration report imports this module for error_in_sigmas alone.
     from planners.ik import camera_pose, ik_camera, rig_centre_offset
-    from robots.arms.rx60 import RX60, fk_flange, rx60_arm
+    from robots.arms.default import DEFAULT_ROBOT, arm_of
+    from robots.arms.rx60 import RX60, fk_flange
     from robots.models.camera_tool import nominal_X_FC
-    from robots.simulation.cell import HOME_Q
     from scanner.calibrate.stations import plan_stations
 
+    seeds = list(seeds)
     stereo = config.camera.stereo_camera()
     X_FC = nominal_X_FC(stereo.baseline_m)
     X_WB = config.placement.X_WB(config.board)
-    robot = RX60()
-    arm = rx60_arm(robot)
+    arm = arm_of(config.robot)
     X_MC = rig_centre_offset(stereo.X_CR)
     plan = plan_stations(
         config.stations,
@@ -152,26 +152,30 @@ def render_free_observations(
         stereo,
         X_FC,
         lambda v: ik_camera(arm, camera_pose(v, X_MC), X_FC),
-        HOME_Q,
+        arm.home_q,
     )
     stations_q = [s.q for s in plan.stations]
-    out = []
-    for seed in seeds:
-        true_robot = (
-            robot
-            if kinematic_error_m is None
-            else kinematic_error_robot(robot, seed, kinematic_error_m)
+    if config.robot == DEFAULT_ROBOT:
+        # The RX60's closed form, whose link lengths a seed may change.
+        robot = RX60()
+        nominal, true_arms = (lambda q: fk_flange(robot, q)), {}
+        if kinematic_error_m is not None:
+            true_arms = {s: kinematic_error_robot(robot, s, kinematic_error_m) for s in seeds}
+        true_poses = {s: (lambda q, r=r: fk_flange(r, q)) for s, r in true_arms.items()}
+    elif kinematic_error_m is None:
+        nominal, true_poses = (lambda q: arm.X_WF(q).GetAsMatrix4()), {}
+    else:
+        raise ValueError("link length errors are simulated for the RX60 only")
+    return [
+        board_observations(
+            config.board,
+            X_WB,
+            stations_q,
+            stereo,
+            X_FC,
+            seed,
+            nominal,
+            true_flange_pose=true_poses.get(seed, nominal),
         )
-        out.append(
-            board_observations(
-                config.board,
-                X_WB,
-                stations_q,
-                stereo,
-                X_FC,
-                seed,
-                lambda q: fk_flange(robot, q),
-                true_flange_pose=lambda q, r=true_robot: fk_flange(r, q),
-            )
-        )
-    return out
+        for seed in seeds
+    ]

@@ -77,8 +77,11 @@ def solve(
     settings: CalibrationSettings,
     intrinsics: StereoCamera | PinholeCamera | None = None,
     source: str = "offline",
+    robot: str = "rx60",
 ) -> Solution:
-    """Intrinsics (unless given), then hand-eye; stereo when any pose has a right image."""
+    """Intrinsics (unless given), then hand-eye; stereo when any pose has a right image.
+    `robot`: the arm that made the poses (as a configuration's `robot`), whose own errors
+    `settings.robot_offsets` estimates."""
     t0 = time.perf_counter()
     is_stereo = any(o.right is not None for o in observations)
     found = [o for o in observations if o.left is not None]
@@ -112,9 +115,9 @@ def solve(
             )
     arm = None
     if settings.robot_offsets:
-        from robots.arms.rx60 import arm_model
+        from robots.arms.default import arm_of
 
-        arm = arm_model()
+        arm = arm_of(robot).error_model()
     hand_eye = calibrate_hand_eye(
         board, observations, cameras, settings, arm=arm, robot_offsets=settings.robot_offsets
     )
@@ -135,7 +138,7 @@ def solve(
     robot = None
     if hand_eye.robot_errors is not None and hand_eye.robot_errors.kept:
         e = hand_eye.robot_errors
-        robot = RobotCorrection(tuple(e.joint_offsets_rad), e.link_length_corrections_m)
+        robot = RobotCorrection(tuple(e.joint_offsets_rad), e.link_length_corrections_m, e.arm_name)
     calibration = Calibration(
         hand_eye.X_FC,
         cameras if isinstance(cameras, StereoCamera) else None,

@@ -246,7 +246,9 @@ def run_calibrate_command(args: argparse.Namespace) -> int:
         is_store = (root / "scan.yaml").is_file()
         board = board_from_args(args, None)
         fmt = pose_format_from_args(args)
-        options = OfflineOptions(board, fmt, args.pose_file, ".txt", args.intrinsics)
+        # The arm named (--robot, the configuration) wins over the one a directory records.
+        robot = None if config.robot == "rx60" else config.robot
+        options = OfflineOptions(board, fmt, args.pose_file, ".txt", args.intrinsics, robot)
         out = args.out
         if out is None and not is_store:
             out = Path("calibrations") / f"{root.name}-{_stamp()}"

@@ -61,7 +61,7 @@ def run_monitor_command(args: argparse.Namespace) -> int:
             f"{args.duration:g} s"
         )
     world = setup_world(config, None, 0)
-    session = ScanMonitor(config.monitor)
+    session = ScanMonitor(config.monitor, world.planner.arm)
     session.start(world)
     monitor = session.monitors[-1]
     q = world.robot.joint_positions()

@@ -300,6 +300,11 @@ def require_plausible_lengths(args: argparse.Namespace) -> None:
             require_below(f"--{name}", typed_text(args, name), value, limit_m, what)
 
 
+def _reach_words(report: dict) -> str:
+    share = report.get("reachable_fraction")
+    return "" if share is None else f"; the arm reaches {100 * share:.0f} % of the view sphere"
+
+
 def scan_result_lines(result) -> list[str]:
     """What `scanner scan` prints at the end: the run, the headline figures with their verdicts
     (with truth), a hand-eye warning if any, and where the results and their summary are."""
@@ -311,7 +316,7 @@ def scan_result_lines(result) -> list[str]:
     lines = [
         f"scan: {r['views_captured']}/{r['views_planned']} views captured, "
         f"{r['views_skipped']} skipped; robot motion {r['robot_motion_s']:.1f} s, "
-        f"wall {r['wall_s']:.1f} s; status {r['status']}",
+        f"wall {r['wall_s']:.1f} s; status {r['status']}{_reach_words(r)}",
         metrics_line(r),
         handeye_warning(r),
         f"scan directory: {result.scan_dir}",

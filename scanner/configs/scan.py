@@ -199,7 +199,13 @@ def load_scan_config(path: Path | None) -> ScanConfig:
 
 
 def scan_config_from_dict(data: dict, where: str) -> ScanConfig:
-    return from_dict(ScanConfig, data, where)
+    """The configuration `data` holds. An arm file's scan whose `cell` names no
+    object_center_m hangs the object where the arm reaches most of the viewpoint sphere (left
+    None here, laid out by scanner.scan.layout); the RX60's keeps its measured cell."""
+    config = from_dict(ScanConfig, data, where)
+    if config.robot != "rx60" and "object_center_m" not in (data.get("cell") or {}):
+        config = replace(config, cell=replace(config.cell, object_center_m=None))
+    return config
 
 
 def scan_config_to_dict(config: ScanConfig) -> dict:
@@ -270,6 +276,9 @@ def with_overrides(
     if robot is not None:
         check_robot(robot, "--robot")
         config = replace(config, robot=absolute_arm_file(robot))
+        if robot != "rx60" and config.cell.object_center_m == WorkcellConfig().object_center_m:
+            # The RX60's cell, not one chosen for this arm: laid out from its reach instead.
+            config = replace(config, cell=replace(config.cell, object_center_m=None))
     if driver is not None:
         check_driver(driver, "--driver")
         config = replace(config, driver=driver)

@@ -10,6 +10,8 @@ import math
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
+from robots.arms.arm import Arm
+from robots.arms.default import DEFAULT_ARM
 from robots.models.kinematics import Kinematics
 from scanner.monitor.cell_monitor import CellMonitor, MonitorSettings
 from scanner.monitor.ee_tracker import tracking_errors
@@ -51,10 +53,11 @@ def intruders_truth(settings: MonitorSettings) -> list[dict]:
 
 
 class ScanMonitor:
-    def __init__(self, settings: MonitorSettings) -> None:
+    def __init__(self, settings: MonitorSettings, arm: Arm = DEFAULT_ARM) -> None:
         self.settings = settings
         self.paths = intruder_paths(settings)
-        self.kinematics = Kinematics()
+        # The tracker compares the tool it sees with the scanning arm's own kinematics.
+        self.kinematics = Kinematics(arm)
         self.monitors: list[CellMonitor] = []
         self.cameras: list[MonitoredCamera] = []
         self.robots: list[MonitoredRobot] = []

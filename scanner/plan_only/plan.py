@@ -258,8 +258,10 @@ class PlanRun:
 def run_plan_only(config: ScanConfig, out: Path, force: bool = False) -> PlanRun:
     """Plan the scan `config` asks for and write plan.json and plan.png into `out`."""
     from scanner.plan_only.picture import draw_plan
+    from scanner.scan.layout import laid_out
 
     require_plan_folder(out, force)
+    config = laid_out(config)
     world = setup_world(config)
     plan = plan_scan(config, world)
     with staged_folder(Path(out), PLAN_FILE) as staging:

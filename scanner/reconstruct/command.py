@@ -80,22 +80,13 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
         )
         if calibration.robot is not None:
             # X_FC was estimated with the arm's own errors: the poses must carry them too.
-            from robots.arms.default import DEFAULT_ROBOT
+            from robots.arms.default import arm_of
             from robots.models.kinematics import corrected_kinematics
 
-            if scan.config.robot != DEFAULT_ROBOT:
-                raise ScannerError(
-                    f"--calibration {options.calibration}: its joint offsets and link lengths "
-                    f"are the RX60's, this scan's arm is {scan.config.robot}: calibrate "
-                    f"without solver.robot_offsets for it"
-                )
-            robot = calibration.robot
-            scan = replace(
-                scan,
-                flange_pose=corrected_kinematics(
-                    robot.joint_offsets_rad, robot.link_length_corrections_m
-                ),
+            flange_pose = corrected_kinematics(
+                arm_of(scan.config.robot), calibration.robot, f"--calibration {options.calibration}"
             )
+            scan = replace(scan, flange_pose=flange_pose)
     out = options.out or free_reconstruction_dir(scan_dir)
     if options.out is not None:
         require_replaceable(options.out, RECONSTRUCTION_MARKER, options.force, "reconstruction")

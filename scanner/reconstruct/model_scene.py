@@ -115,7 +115,8 @@ def reconstruction_scene(
     first = next((v for v in result.views if v.hanging == 0), None)
     robot = None
     if first is not None and first.index in views.joints:
-        robot = RobotPose(views.joints[first.index], result.X_FC, camera_model.X_CR)
+        q = views.joints[first.index]
+        robot = RobotPose(q, result.X_FC, camera_model.X_CR, scan.config.robot)
     cell = scan.config.cell
     return ModelScene(
         mesh=DisplayMesh(vertices, triangles, colours.values_m),

@@ -116,6 +116,7 @@ def _draw_segments(meshcat, path: str, start, end, rgba) -> None:
 def _draw_robot(meshcat, cell, robot: RobotPose) -> None:
     """The arm and its tool (not the cell's boxes: they are outlined in /cell) at `robot.q_rad`,
     published once through Drake's MeshcatVisualizer."""
+    from robots.arms.default import arm_of
     from robots.models.workcell import WorkcellConfig, build_workcell
 
     bare = replace(cell or WorkcellConfig(), boxes=())
@@ -124,6 +125,7 @@ def _draw_robot(meshcat, cell, robot: RobotPose) -> None:
         None,
         robot.X_FC,
         robot.X_CR,
+        arm_of(robot.robot),
         meshcat=meshcat,
         include_object=False,
         meshcat_prefix=ROBOT_PATH,

@@ -46,12 +46,14 @@ class ViewFrustum:
 
 @dataclass(frozen=True, eq=False)
 class RobotPose:
-    """The arm at one configuration (q_rad (6,)), with the tool's camera frames at X_FC and
-    the pair's X_CR (they only place frames; the tool's shape is the model's)."""
+    """The arm at one configuration (q_rad, one per joint), with the tool's camera frames at
+    X_FC and the pair's X_CR (they only place frames; the tool's shape is the model's);
+    `robot`: the arm, as a configuration's `robot` names it (drawn from its own model)."""
 
     q_rad: np.ndarray
     X_FC: np.ndarray
     X_CR: np.ndarray
+    robot: str = "rx60"
 
 
 @dataclass(frozen=True, eq=False)

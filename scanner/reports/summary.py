@@ -150,6 +150,11 @@ def _run_lines(report: dict) -> list[str]:
             f"{_fmt(report.get('robot_motion_s', 0.0), 1)} s, scan wall time "
             f"{_fmt(report.get('wall_s', 0.0), 1)} s",
         ]
+        if report.get("reachable_fraction") is not None:
+            lines.append(
+                f"- the arm reaches {_fmt(100 * report['reachable_fraction'], 0)} % of the view "
+                "sphere (the views' directions with a collision-free IK solution)"
+            )
     if "reconstruct_s" in report:
         lines.append(
             f"- reconstruction: {report.get('captures_used')} captures used, "

@@ -75,7 +75,9 @@ class HangingRunner:
         self.tour_cost_s = 0.0
         self.machine: DecisionMaker | None = None
         self.abort_requested = False
-        self.monitor = ScanMonitor(config.monitor) if config.monitor.enabled else None
+        self.monitor = (
+            ScanMonitor(config.monitor, world.planner.arm) if config.monitor.enabled else None
+        )
         self.assessor: HangingAssessor | None = None
         self.presentation = presentation_for(config, store)
 

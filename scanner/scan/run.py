@@ -26,6 +26,7 @@ from scanner.reconstruct.view_stream import ViewStream, processing_hidden_s
 from scanner.reports.summary import write_summary
 from scanner.scan.decision import RunSummary
 from scanner.scan.hangings import HangingRunner
+from scanner.scan.layout import laid_out
 from scanner.scan.rescan import record_left_out, reopen_left_out
 from scanner.scan.session import interruptible, log_file, meshcat_if
 from scanner.scan.viewpoints import ViewPlan, generate_viewpoints
@@ -220,7 +221,8 @@ def run_scan(
         return _reconstruct_captured(saved, show_stages)
     timer = StageTimer()
     wall0 = time.perf_counter()
-    config = saved.config if saved else (config or ScanConfig())
+    # A new scan's object hangs where its configuration says, or where its arm sees most of it.
+    config = saved.config if saved else laid_out(config or ScanConfig())
     hanging = saved.hanging if saved else 0  # where the object hangs now
     again = saved.manifest.get("rescanning") if saved else None
     first = hanging if again is None else again

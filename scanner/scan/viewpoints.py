@@ -132,6 +132,15 @@ def generate_viewpoints(
             f"{config.roll_candidates} rolls tried); use a radius the arm can reach around this "
             "centre (with the default cell: 0.4-0.55 m) or move the scan centre"
         )
+    if ok.sum() < config.count:
+        raise ScannerError(
+            f"views.count: {config.count} views asked, but only {int(ok.sum())} of "
+            f"{config.candidates} directions at radius {config.radius_m} m around "
+            f"{tuple(float(v) for v in center.round(3))} are reachable and collision-free "
+            f"({100 * fraction:.0f} % of the sphere); ask fewer views, or move the object "
+            "(cell.object_center_m; an arm file's scan without it hangs the object where the "
+            "arm reaches most), or change views.radius_m"
+        )
     reachable_dirs = candidates[ok]
     dropped: list[DroppedView] = []
     if config.distribution == "reachable":

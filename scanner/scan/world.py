@@ -15,7 +15,7 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import transform_points
 from reconstruction.depth.camera_model import CameraModel
 from robots.arms.arm import Arm
-from robots.arms.default import DEFAULT_ROBOT, arm_of
+from robots.arms.default import arm_of
 from robots.cache import cache_dir
 from robots.drivers.connect import close_all, connect_robot
 from robots.drivers.interfaces import (
@@ -114,13 +114,7 @@ def software_kinematics(config: ScanConfig):
         correction = load_calibration(Path(config.calibration_file)).robot
     if correction is None:
         return Kinematics(arm_of(config.robot)).X_WF
-    if config.robot != DEFAULT_ROBOT:
-        # The correction's link lengths are the RX60's (robots/arms/rx60.py LINK_LENGTHS).
-        raise ScannerError(
-            f"calibration_file: its robot correction models the RX60's links; robot "
-            f"{config.robot} cannot use it (calibrate without --robot-offsets)"
-        )
-    return corrected_kinematics(correction.joint_offsets_rad, correction.link_length_corrections_m)
+    return corrected_kinematics(arm_of(config.robot), correction, "calibration_file")
 
 
 def software_camera(config: ScanConfig) -> tuple[CameraModel, np.ndarray]:
