@@ -28,8 +28,8 @@ from robots.models.workcell import WorkcellConfig, build_workcell
 # Distances of the candidate centres from the shoulder, in units of the arm's reach plus the
 # sphere's radius, and their elevations above it (rad). Nearer than about half leaves the arm
 # inside the sphere, in the object's way; beyond three quarters little of the sphere is within
-# reach. The RX60's measured cell (0.77 of it, 59 deg up: its arm looks at the object from
-# below) lies inside this grid.
+# reach. The default arm's measured cell (0.77 of it, 59 deg up: the arm looks at the object
+# from below) lies inside this grid.
 DISTANCES_OF_REACH = (0.45, 0.6, 0.75)
 ELEVATIONS_RAD = (0.0, math.radians(30.0), math.radians(60.0))
 # The lowest an object centre may hang above the table top (z = 0): half a metre-class object's
