@@ -182,7 +182,7 @@ def test_the_next_best_turn_faces_the_cameras_to_the_unseen_side():
 
     from reconstruction.evaluation.coverage import SeenSurface
     from reconstruction.evaluation.metrics import SurfaceSamples, TriangleSurface
-    from scanner.presentation.next_turn import next_best_turn, wrapped
+    from scanner.scan.presentation.next_turn import next_best_turn, wrapped
 
     centre = np.array([0.4, 0.0, 1.0])
     sphere = o3d.geometry.TriangleMesh.create_sphere(0.08, 20)
@@ -205,7 +205,7 @@ def test_the_next_best_turn_faces_the_cameras_to_the_unseen_side():
 
 def test_the_report_gives_the_calibrated_axis_against_the_model_and_the_truth():
     from reconstruction.hangings.alignment import PassAlignment
-    from scanner.presentation.known_turns import turntable_report
+    from scanner.scan_dir.known_turns import turntable_report
 
     turns = KnownTurns((0.0, 2.0), NOMINAL)
     T = turn_about_axis(TRUE_AXIS.p_W, TRUE_AXIS.u_W, -2.0)

@@ -90,7 +90,7 @@ class ProcessingConfig:
 
 MAX_HANGINGS = 6
 AUTO = "auto"
-# How the object is offered and turned between passes (scanner/presentation/).
+# How the object is offered and turned between passes (scanner/scan/presentation/).
 PRESENTATIONS = ("hanging", "turntable", "table")
 
 

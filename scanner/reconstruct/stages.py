@@ -37,11 +37,6 @@ from reconstruction.surfaces.topology import mesh_quality
 from robots.sensors import sensor_named
 from scanner.configs.scan import ProcessingConfig
 from scanner.configs.typed_yaml import load_yaml_file, to_dict
-from scanner.presentation.known_turns import (
-    known_turns,
-    true_turntable_axis,
-    turntable_report,
-)
 from scanner.reconstruct.evaluation import (
     hangings_report,
     observed_samples,
@@ -54,6 +49,11 @@ from scanner.reconstruct.view_stream import StreamedViews, settings_key
 from scanner.reports.model_page import PAGE_NAME
 from scanner.reports.self_checks import self_check_record
 from scanner.scan_dir.captures import atomic_write_text
+from scanner.scan_dir.known_turns import (
+    known_turns,
+    true_turntable_axis,
+    turntable_report,
+)
 from scanner.scan_dir.manifest import SavedScan, open_scan
 from scanner.scan_dir.outputs import RECONSTRUCTION_MARKER
 from scanner.scan_dir.results_folder import free_results_dir, holds_result, staged_folder

@@ -26,7 +26,6 @@ from reconstruction.registration.filtering import filter_views, o3d_cloud, refil
 from reconstruction.surfaces.fixture import without_fixture
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds
 from scanner.configs.scan import ScanConfig
-from scanner.presentation.known_turns import known_turns
 from scanner.reconstruct.scan_views import (
     capture_views,
     fixture_line,
@@ -35,6 +34,7 @@ from scanner.reconstruct.scan_views import (
     with_roi_centre,
 )
 from scanner.reconstruct.view_stream import ViewStream
+from scanner.scan_dir.known_turns import known_turns
 from scanner.scan_dir.manifest import SavedScan
 
 log = logging.getLogger("scanner.scan.auto_hangings")

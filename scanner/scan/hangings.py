@@ -1,5 +1,5 @@
 """The capture part of a scan: the decision maker over each hanging's (pass's) views in turn, the
-object presented anew in between (scanner/presentation: re-hung by the operator, or turned by the
+object presented anew in between (scan/presentation: re-hung by the operator, or turned by the
 turntable), next-best views after each pass's planned ones, and the runs summed up."""
 
 from __future__ import annotations
@@ -17,12 +17,12 @@ from robots.simulation.truth import record_hung_pose
 from scanner.configs.scan import ScanConfig
 from scanner.monitor.cell_monitor import MonitorStoppedError
 from scanner.monitor.scan_monitor import ScanMonitor
-from scanner.presentation import presentation_for
 from scanner.reconstruct.scan_views import model_so_far
 from scanner.reconstruct.view_stream import ViewStream, with_stream
 from scanner.scan.auto_hangings import HangingAssessor, decide
 from scanner.scan.decision import DecisionMaker, FixedViewList, RunSummary
 from scanner.scan.next_best_view import CoverageModel
+from scanner.scan.presentation import presentation_for
 from scanner.scan.viewpoints import planned_view
 from scanner.scan.world import ScanWorld, WatchedRobot, live_cloud, software_kinematics
 from scanner.scan_dir.captures import CaptureStore

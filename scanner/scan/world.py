@@ -191,7 +191,7 @@ def setup_world(
                 "combine scans with scanner merge"
             )
         if config.presentation == "turntable":
-            from scanner.presentation.turntable_check import check_turntable
+            from scanner.scan.presentation.turntable_check import check_turntable
 
             check_turntable(hardware.turntable)
     else:

@@ -22,9 +22,9 @@ from reconstruction.evaluation.coverage import SeenSurface
 from robots.drivers.interfaces import TurntableDriver
 from robots.simulation.truth import hung_pose_of
 from robots.simulation.turntable import SimulatedTurntable, true_axis
-from scanner.presentation.base import Presentation
-from scanner.presentation.next_turn import next_best_turn, wrapped
-from scanner.presentation.turntable_check import TurntableStoppedError, turn
+from scanner.scan.presentation.base import Presentation
+from scanner.scan.presentation.next_turn import next_best_turn, wrapped
+from scanner.scan.presentation.turntable_check import TurntableStoppedError, turn
 from scanner.scan.world import ScanWorld
 
 ANGLES_KEY = "turntable_angles_rad"

@@ -8,7 +8,7 @@ import math
 
 from reconstruction.common.errors import ScannerError
 from robots.drivers.interfaces import TurntableDriver
-from scanner.presentation.next_turn import wrapped
+from scanner.scan.presentation.next_turn import wrapped
 
 # How far the reported angle may be from the commanded one: a stepper turntable repeats to a
 # few hundredths of a degree; 0.2 deg is a missed step or a slipping belt, not noise.

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 
 from reconstruction.evaluation.coverage import SeenSurface
-from scanner.presentation.base import Presentation
 from scanner.reports.rehang_picture import write_rehang_picture
 from scanner.scan.next_hanging import instruction, next_best_hanging
+from scanner.scan.presentation.base import Presentation
 from scanner.scan.world import ScanWorld
 
 

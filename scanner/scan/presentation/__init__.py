@@ -18,8 +18,8 @@ from scanner.configs.scan import PRESENTATIONS  # noqa: F401  (the names, valida
 
 def presentation_for(config, store):
     """The configured presentation (`config.presentation`) of the scan in `store`."""
-    from scanner.presentation.hanging import Hanging
-    from scanner.presentation.turntable import Turntable
+    from scanner.scan.presentation.hanging import Hanging
+    from scanner.scan.presentation.turntable import Turntable
 
     check_presentation(config.presentation)
     return {k.kind: k for k in (Hanging, Turntable)}[config.presentation](config, store)
