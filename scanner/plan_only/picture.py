@@ -63,7 +63,7 @@ def _cell(axes, cell: WorkcellConfig, plan: ScanPlan, i: int, j: int) -> None:
         )
         axes.annotate(box.name, corner, (2, 2), textcoords="offset points", fontsize=8)
     axes.plot([0.0], [0.0], marker="^", markersize=12, color="black", linestyle="none")
-    axes.annotate("RX60 base", (0.0, 0.0), (4, -12), textcoords="offset points", fontsize=8)
+    axes.annotate("robot base", (0.0, 0.0), (4, -12), textcoords="offset points", fontsize=8)
     c = np.asarray(cell.object_center_m, float)
     if j == 2:
         axes.plot([c[i], c[i]], [c[2], cell.rod_top_z_m], color="grey", lw=1)
