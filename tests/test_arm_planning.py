@@ -149,3 +149,27 @@ def test_planners_name_no_arm_model():
     ]:
         text = path.read_text()
         assert not re.search(r"rx60", text, re.IGNORECASE), f"{path.name} names the RX60"
+
+
+# The controller of the Staubli arms (its driver and emulator) is the RX60's by nature; the
+# calibration's sigma benchmark simulates link-length errors on the RX60's closed form alone.
+ARM_SPECIFIC = {
+    "robots/drivers/staubli_val3.py",
+    "robots/emulator/val3_server.py",
+    "scanner/calibrate/sigma_check.py",
+}
+
+
+def test_only_the_arm_package_imports_an_arm_model():
+    # Everything else asks robots.arms (the Arm, the default arm, an arm file) for its arm; the
+    # arms other than the RX60 are files (scanner/configs/arms), not modules.
+    pattern = re.compile(r"^\s*(from|import)\s+robots\.arms\.rx60\b")
+    found = []
+    for folder in ("scanner", "robots", "planners", "reconstruction"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            name = path.relative_to(ROOT).as_posix()
+            if name.startswith("robots/arms/") or name in ARM_SPECIFIC:
+                continue
+            lines = path.read_text().splitlines()
+            found += [f"{name}:{k + 1}" for k, line in enumerate(lines) if pattern.match(line)]
+    assert not found, found

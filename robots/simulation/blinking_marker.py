@@ -22,7 +22,6 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 
 from reconstruction.common.errors import ScannerError
-from robots.arms.rx60 import FLANGE_FRAME
 from robots.models.workcell import textured_instance
 
 
@@ -108,8 +107,10 @@ class MarkerConfig:
 class BlinkingMarker:
     """Adds the marker to a plant (call as a build_workcell extra) and switches it in a context."""
 
-    def __init__(self, config: MarkerConfig, directory: Path) -> None:
+    def __init__(self, config: MarkerConfig, directory: Path, flange_frame: str) -> None:
+        """`flange_frame`: the frame of the arm's flange the marker is fixed to (the arm's)."""
         self.config = config
+        self._flange_frame = flange_frame
         self._gltf = write_emissive_sphere_gltf(
             Path(directory) / f"marker-{config.radius_m:.6f}.gltf", config.radius_m
         )
@@ -118,7 +119,7 @@ class BlinkingMarker:
         self._properties = None
 
     def __call__(self, plant: MultibodyPlant, robot_instance) -> None:
-        flange = plant.GetFrameByName(FLANGE_FRAME, robot_instance)
+        flange = plant.GetFrameByName(self._flange_frame, robot_instance)
         X_BM = flange.GetFixedPoseInBodyFrame() @ RigidTransform(np.array(self.config.p_FM))
         label = int(flange.body().index())
         instance = textured_instance(Mesh(str(self._gltf)), "blinking_marker", label)

@@ -26,6 +26,7 @@ from reconstruction.calibration.eye_to_hand import (
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import make_pose, pose_difference, transform_points
 from reconstruction.stereo.camera_model import StereoCamera, stereo_camera_to_dict
+from robots.arms.default import arm_of
 from robots.cache import cache_dir
 from robots.simulation.blinking_marker import BlinkingMarker
 from robots.simulation.static_camera import StaticStereoCamera
@@ -65,7 +66,8 @@ class _MarkerSession:
 
     def __init__(self, config: CalibrateConfig, move_to: MoveFn | None) -> None:
         self.settings = config.eye_to_hand
-        marker = BlinkingMarker(self.settings.marker, cache_dir() / "markers")
+        flange = arm_of(config.robot).flange_frame
+        marker = BlinkingMarker(self.settings.marker, cache_dir() / "markers", flange)
         self.world = build_world(config, extras=(marker,), with_board=False)
         sim = self.world.sim
         self.stereo_S = self.settings.camera.stereo_camera()
