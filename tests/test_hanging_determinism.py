@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from reconstruction.common.transforms import make_pose, snapped
-from reconstruction.hangings.alignment import AlignmentConfig, SeenSpace
+from reconstruction.hangings.alignment import AlignmentConfig
+from reconstruction.hangings.free_space import SeenSpace
 from robots.models.objects import resolve_object
 from robots.simulation.operator import hung_pose
 from tests.partial_clouds import partial_cloud, stripes

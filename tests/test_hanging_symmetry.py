@@ -14,7 +14,8 @@ from reconstruction.common.transforms import (
     rotation_angle_rad,
     transform_points,
 )
-from reconstruction.hangings.alignment import AlignmentConfig, SeenSpace, alignment_error
+from reconstruction.hangings.alignment import AlignmentConfig, alignment_error
+from reconstruction.hangings.free_space import SeenSpace
 from robots.models.objects import resolve_object
 from robots.simulation.operator import hung_pose
 from tests.partial_clouds import partial_cloud, stripes

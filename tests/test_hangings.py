@@ -21,13 +21,8 @@ from reconstruction.common.transforms import (
     rotation_about,
     transform_points,
 )
-from reconstruction.hangings.alignment import (
-    AlignmentConfig,
-    SeenSpace,
-    align_pass,
-    alignment_error,
-    free_space_violation,
-)
+from reconstruction.hangings.alignment import AlignmentConfig, align_pass, alignment_error
+from reconstruction.hangings.free_space import SeenSpace, free_space_violation
 from reconstruction.registration.views import DepthImage
 from robots.models.objects import resolve_object
 from robots.models.workcell import placed_object

@@ -12,7 +12,8 @@ import pytest
 import yaml
 
 from reconstruction.common.transforms import make_pose, rotation_about, transform_points
-from reconstruction.hangings.alignment import SeenSpace, align_pass, alignment_error
+from reconstruction.hangings.alignment import align_pass, alignment_error
+from reconstruction.hangings.free_space import SeenSpace
 from reconstruction.hangings.turntable import Axis, KnownTurns, axis_from_turns, turn_about_axis
 from robots.models.objects import resolve_object
 from robots.models.turntable import standing_pose, turntable_geometry

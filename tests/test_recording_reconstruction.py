@@ -77,8 +77,8 @@ def test_the_model_agrees_with_the_masks_it_did_not_use(even_masks):
 def test_the_working_volume_comes_from_the_masks_or_the_cameras(even_masks, no_masks):
     hull, common = even_masks.report["working_volume"], no_masks.report["working_volume"]
     assert common["source"] == "common view"
-    # The hull of views from one side is open in depth: cut by the common view's sphere, its
-    # own sphere is about as large, centred on the masks.
+    # The hull of views from one side is open in depth: its sphere, centred on the masks and not
+    # capped by the common view's, comes out about as large as the common view's.
     assert hull["source"] == "masks" and hull["radius_m"] < 1.3 * common["radius_m"]
     # DTU's own sphere about the scene (scale_mat): centre (-28.5, -13.2, 641.5) mm, radius
     # 231 mm. Both volumes lie about the same place and are of its size.

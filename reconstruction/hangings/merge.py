@@ -19,7 +19,8 @@ import numpy as np
 
 from reconstruction.common.errors import RefusedResultError, ScannerError
 from reconstruction.common.transforms import invert, transform_points
-from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment, SeenSpace, align_pass
+from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment, align_pass
+from reconstruction.hangings.free_space import SeenSpace
 from reconstruction.hangings.turntable import KnownTurns
 from reconstruction.registration.filtering import FilteredCloud, RemovePoints
 from reconstruction.registration.views import ViewCloud

@@ -20,7 +20,8 @@ import numpy as np
 from reconstruction.common.transforms import invert, rotate_vectors, transform_points
 from reconstruction.evaluation.coverage import SeenSurface, seen_surface
 from reconstruction.evaluation.metrics import SurfaceSamples, TriangleSurface
-from reconstruction.hangings.alignment import SeenSpace, align_pass
+from reconstruction.hangings.alignment import align_pass
+from reconstruction.hangings.free_space import SeenSpace
 from reconstruction.pipeline import ReconstructionInputs, reconstruct_views
 from reconstruction.registration.filtering import filter_views, o3d_cloud, refiltered
 from reconstruction.surfaces.fixture import without_fixture
