@@ -15,6 +15,7 @@ from robots.arms.default import arm_of
 from scanner.configs.scan import ScanConfig, load_scan_config, with_overrides
 from scanner.scan_dir.manifest import open_scan
 from tests.in_process import scanner
+from tests.tiny_arm import write_tiny_arm
 from tests.tiny_scan import TINY_SCAN
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -171,3 +172,42 @@ def test_a_calibration_with_another_arms_own_errors_is_refused_for_a_scan(ur5e_s
     with pytest.raises(ScannerError, match="joint offsets and link lengths are arm rx60's"):
         reconstruct_one(ur5e_scan.scan_dir, ReconstructOptions(calibration=path, out=out))
     assert not out.exists()
+
+
+# An arm nobody ships, written as two files into the test's folder, hangs a 0.1 m object in
+# front of its shoulder (upper arm 0.4 m, forearm 0.35 m) and looks at it from 0.3 m: 4 of the
+# 16 directions below are reachable there.
+TINY6_SCAN = {
+    **TINY_SCAN,
+    "cell": {"object_center_m": [0.4, 0.0, 0.4], "object_size_m": 0.1},
+    # Each candidate direction and roll is a numerical IK request (about 0.1 s).
+    "views": {
+        **TINY_SCAN["views"],
+        "count": 3,
+        "radius_m": 0.3,
+        "candidates": 16,
+        "roll_candidates": 2,
+    },
+}
+
+
+def test_an_arm_added_as_two_files_plans_and_simulates_a_scan(tmp_path):
+    from scanner.scan.run import run_scan
+
+    arm_file = write_tiny_arm(tmp_path, base_pose="{xyz_m: [0, 0, 0], rpy_rad: [0, 0, 0]}")
+    config = load_scan_config(write_config(tmp_path, {**TINY6_SCAN, "robot": str(arm_file)}))
+    result = run_scan(config, tmp_path / "scan")
+    saved = open_scan(result.scan_dir)
+    arm = arm_of(saved.config.robot)
+    assert saved.manifest["robot"]["name"] == "tiny6"
+    assert Path(saved.manifest["robot"]["arm_file"]) == arm_file
+    indices = saved.store.captured_indices()
+    assert len(indices) == TINY6_SCAN["views"]["count"]
+    for i in indices:
+        capture = saved.store.read_capture(i)
+        assert capture.q_rad.shape == (6,) and arm.within_limits(capture.q_rad)
+        X_WF = arm.X_WF(capture.q_rad).GetAsMatrix4()
+        assert np.abs(X_WF[:3, 3] - capture.X_WF[:3, 3]).max() < FLANGE_TOL_M
+    report = result.report
+    assert report["status"] == "complete" and report["views_captured"] == len(indices)
+    assert report["chamfer_observed_mm"] < CHAMFER_OBSERVED_MAX_MM

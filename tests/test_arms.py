@@ -16,6 +16,7 @@ from robots.arms.arm import load_arm, load_arm_file
 from robots.arms.arm_file import read_arm_file
 from robots.arms.general_ik import redundant_grid
 from robots.arms.model import load_arm_plant, model_text
+from tests.tiny_arm import write_tiny_arm
 
 ARMS = Path(__file__).resolve().parents[1] / "scanner" / "configs" / "arms"
 # Double-precision kinematics: FK of two implementations agree to rounding.
@@ -205,55 +206,9 @@ def test_unreachable_pose_has_no_solution(ur5e):
 
 # --- adding an arm is a file ---------------------------------------------------------------------
 
-TINY_URDF = """<?xml version="1.0"?>
-<robot name="tiny6">
-  <link name="base"/>
-  {links}
-</robot>
-"""
-
-
-def _tiny_urdf() -> str:
-    # An anthropomorphic 6R arm with a spherical wrist (0.3 m column, 0.4 m upper arm, 0.35 m
-    # forearm, 0.08 m to the flange), one inertia per link so Drake accepts it.
-    origins = ["0 0 0.3", "0 0 0", "0 0 0.4", "0 0 0.35", "0 0 0", "0 0 0.08"]
-    axes = ["0 0 1", "0 1 0", "0 1 0", "0 0 1", "0 1 0", "0 0 1"]
-    parts, parent = [], "base"
-    for i, (xyz, axis) in enumerate(zip(origins, axes), start=1):
-        child = f"link{i}"
-        parts.append(
-            f'<link name="{child}"><inertial><mass value="1"/>'
-            f'<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>'
-            f'<joint name="j{i}" type="revolute"><parent link="{parent}"/><child link="{child}"/>'
-            f'<origin xyz="{xyz}"/><axis xyz="{axis}"/>'
-            f'<limit lower="-2.9" upper="2.9" velocity="2.0" effort="10"/></joint>'
-        )
-        parent = child
-    return TINY_URDF.format(links="\n  ".join(parts))
-
-
-def _write_arm(folder: Path, **overrides) -> Path:
-    (folder / "tiny6.urdf").write_text(_tiny_urdf())
-    fields = {
-        "name": "tiny6",
-        "model": "tiny6.urdf",
-        "flange_link": "link6",
-        "base_pose": "{xyz_m: [0.1, 0.2, 0.0], rpy_rad: [0.0, 0.0, 0.5]}",
-        "joint_limits": "{"
-        + ", ".join(f"j{i}: {{acceleration_rad_s2: 5.0}}" for i in range(1, 7))
-        + "}",
-        "accuracy_m": "0.001",
-        "repeatability_m": "0.0001",
-    }
-    fields.update(overrides)
-    text = "".join(f"{k}: {v}\n" for k, v in fields.items() if v is not None)
-    path = folder / "tiny6.yaml"
-    path.write_text(text)
-    return path
-
 
 def test_an_arm_added_as_files_loads_and_solves(tmp_path):
-    arm = load_arm(_write_arm(tmp_path))
+    arm = load_arm(write_tiny_arm(tmp_path))
     assert arm.joint_names == tuple(f"j{i}" for i in range(1, 7))
     np.testing.assert_allclose(arm.acceleration, 5.0)
     # Upright at q = 0: the base pose's offset, then the column, arms and flange stacked.
@@ -281,7 +236,7 @@ def test_an_arm_added_as_files_loads_and_solves(tmp_path):
     ],
 )
 def test_bad_arm_file_gives_one_line_naming_the_field(tmp_path, overrides, field):
-    path = _write_arm(tmp_path, **overrides)
+    path = write_tiny_arm(tmp_path, **overrides)
     with pytest.raises(ScannerError) as error:
         load_arm_file(path)
     message = str(error.value)
