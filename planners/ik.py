@@ -32,11 +32,14 @@ class Viewpoint:
         return float(np.linalg.norm(np.subtract(self.p_WT, self.p_WM)))
 
 
-def look_at_rotation(p_WM: np.ndarray, p_WT: np.ndarray, roll_rad: float = 0.0) -> np.ndarray:
-    """R_WM with +z towards the target and, at zero roll, +x horizontal (+y pointing down)."""
+def look_at_rotation(
+    p_WM: np.ndarray, p_WT: np.ndarray, roll_rad: float = 0.0, up_W=(0.0, 0.0, 1.0)
+) -> np.ndarray:
+    """R_WM with +z towards the target and, at zero roll, +x horizontal (+y pointing down);
+    `up_W`: what counts as up (+y then points away from it)."""
     z = np.asarray(p_WT, float) - np.asarray(p_WM, float)
     z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
+    x = np.cross(z, np.asarray(up_W, float))
     if np.linalg.norm(x) < 1e-6:  # looking straight up or down: any horizontal x will do
         x = np.array([1.0, 0.0, 0.0])
     x /= np.linalg.norm(x)

@@ -5,6 +5,8 @@ surface. Eight views at a quarter of the resolution (the whole set: scripts/benc
 """
 
 import json
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +15,7 @@ from reconstruction.common.errors import ScannerError
 from scanner.commands.main import main
 from scanner.commands.reconstruct import reconstruct_saved
 from scanner.reconstruct.command import ReconstructOptions
+from tests.in_process import scanner
 from tests.recording_files import dtu_small_folder
 
 VIEWS = 8
@@ -72,6 +75,38 @@ def test_the_model_agrees_with_the_masks_it_did_not_use(even_masks):
 
     printed = "\n".join(summary_lines(r))
     assert "silhouettes on 4 held-out views: IoU" in printed and "split-half agreement" in printed
+
+
+def test_the_models_picture_has_the_colours_of_its_images(even_masks, dtu_scan):
+    """model_colours.png shows the model in the colours taken from the images: the mean
+    chromaticity of what it shows is that of the masked image pixels (a red-brick house: red
+    ahead of blue; with the channels swapped it would be blue ahead of red)."""
+    import cv2
+
+    from scanner.scan_dir.manifest import open_scan
+
+    folder = even_masks.results_dir
+    assert even_masks.report["outputs"]["colour_picture"] == "model_colours.png"
+    assert "(model_colours.png)" in (folder / "summary.md").read_text()
+    picture = cv2.imread(str(folder / "model_colours.png"))[..., ::-1].astype(float)
+    assert picture.shape == (480, 960, 3)
+    shown = np.any(np.abs(picture - picture[-1, -1]) > 12, axis=2)
+    shown[:40] = False  # the labels
+    assert 0.05 < shown.mean() < 0.9
+    saved = open_scan(dtu_scan)
+    total, count = np.zeros(3), 0
+    for i in saved.store.captured_indices():
+        capture = saved.store.read_capture(i)
+        inside = np.asarray(capture.mask) > 0
+        total += np.asarray(capture.left)[inside].astype(float).sum(axis=0)
+        count += inside.sum()
+    chroma_images = total / count / (total / count).sum()
+    mean = picture[shown].mean(axis=0)
+    chroma_picture = mean / mean.sum()
+    # Measured: images (0.377, 0.319, 0.304), picture (0.356, 0.326, 0.319); the shading is
+    # white light, which keeps the chromaticity but for the grey of shadows.
+    assert np.abs(chroma_picture - chroma_images).max() < 0.03
+    assert chroma_picture[0] - chroma_picture[2] > 0.25 * (chroma_images[0] - chroma_images[2])
 
 
 def test_the_working_volume_comes_from_the_masks_or_the_cameras(even_masks, no_masks):
@@ -169,3 +204,143 @@ def test_views_with_depth_images_go_through_the_depth_path(tmp_path, capfd):
     signed = np.linalg.norm(fused - centre, axis=1) - radius
     assert len(fused) > 500
     assert -0.25e-3 < np.median(signed) < 0 and np.percentile(np.abs(signed), 95) < 0.5e-3
+
+
+# Spheres of different sizes, off each other's centres: a shape with no symmetry, which holds a
+# registration (one sphere turns on itself) and so the hand-eye correction. Centres and radii, m.
+BLOBS = np.array(
+    [
+        [0.0, 0.0, 0.0, 0.05],
+        [0.045, 0.025, 0.02, 0.03],
+        [-0.03, 0.045, -0.025, 0.028],
+        [0.0, -0.045, 0.035, 0.022],
+        [-0.04, -0.02, -0.03, 0.02],
+    ]
+)
+
+
+def _depth_of_blobs(X_WC: np.ndarray, K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Depth along the optical axis (m, 0 where no sphere is hit) of the nearest sphere."""
+    w, h = size
+    v, u = np.mgrid[0:h, 0:w]
+    rays_C = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones((h, w))], -1)
+    rays_W = rays_C @ X_WC[:3, :3].T
+    a2 = np.einsum("ijk,ijk->ij", rays_W, rays_W)
+    z = np.full((h, w), np.inf)
+    for cx, cy, cz, r in BLOBS:
+        # |o + t d|^2 = r^2 along each ray d (not unit: t is the depth z).
+        o = X_WC[:3, 3] - (cx, cy, cz)
+        b = 2 * rays_W @ o
+        disc = b**2 - 4 * a2 * (o @ o - r**2)
+        t = (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a2)
+        z = np.where((disc > 0) & (t > 0) & (t < z), t, z)
+    return np.where(np.isfinite(z), z, 0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class BlobsRecording:
+    scan: Path
+    X_FC_true: np.ndarray
+    X_FC_given: np.ndarray
+
+
+@pytest.fixture(scope="module")
+def blobs(tmp_path_factory) -> BlobsRecording:
+    """A plain recording of flange poses and an X_FC 3 mm / 1 deg off the camera's true mount,
+    with depth images of BLOBS from 24 views around them (twelve fewer leave the correction
+    unconverged: sigma 1.8 mm)."""
+    import cv2
+    import yaml
+
+    from reconstruction.common.transforms import invert, make_pose
+    from tests.recording_files import look_at
+
+    tmp_path = tmp_path_factory.mktemp("blobs")
+    f, (w, h) = 600.0, (480, 360)
+    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]])
+    X_FC_true = make_pose(np.eye(3), (0.01, -0.02, 0.1))
+    tilt = 1.0 * np.pi / 180 / np.sqrt(2)
+    R_off = cv2.Rodrigues(np.array([tilt, -tilt, 0.0]))[0]
+    X_FC_given = make_pose(R_off @ X_FC_true[:3, :3], X_FC_true[:3, 3] + (0.002, 0.002, -0.001))
+    folder = tmp_path / "recording"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    views = []
+    stations = [(a, 0.2) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)]
+    stations += [(a + 0.26, -0.15) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)]
+    for i, (a, height) in enumerate(stations):
+        X_WC = look_at((0.45 * np.cos(a), 0.45 * np.sin(a), height))
+        # Rolled about the optical axis by a different angle each: the flange turns about
+        # more than one axis between views, which the hand-eye problem needs.
+        X_WC = X_WC @ make_pose(cv2.Rodrigues(np.array([0.0, 0.0, 0.13 * i - 1.5]))[0], (0, 0, 0))
+        z = _depth_of_blobs(X_WC, K, (w, h))
+        cv2.imwrite(str(folder / f"d{i}.png"), np.round(z / 1e-4).astype(np.uint16))
+        cv2.imwrite(str(folder / f"i{i}.png"), rng.integers(0, 255, (h, w, 3), np.uint8))
+        X_WF = X_WC @ invert(X_FC_true)
+        views.append({"image": f"i{i}.png", "X_WF": X_WF.tolist(), "depth": f"d{i}.png"})
+    doc = {"unit_m": 1.0, "K": K.tolist(), "X_FC": X_FC_given.tolist(), "depth_unit_m": 1e-4}
+    (folder / "recording.yaml").write_text(yaml.safe_dump({**doc, "views": views}))
+    scan = tmp_path / "scan"
+    assert main(["import-recording", str(folder), "--out", str(scan)]) == 0
+    return BlobsRecording(scan, X_FC_true, X_FC_given)
+
+
+def _mount_error(X_FC_true: np.ndarray, X_FC: np.ndarray) -> tuple[float, float]:
+    """mm, deg."""
+    from reconstruction.common.transforms import invert
+
+    d = invert(X_FC_true) @ X_FC
+    angle = np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1))
+    return 1e3 * float(np.linalg.norm(d[:3, 3])), float(np.degrees(angle))
+
+
+def test_flange_poses_with_a_rough_X_FC_get_the_hand_eye_correction(blobs, tmp_path):
+    """The hand-eye correction runs on a recording of flange poses as on a scan, and brings
+    the recorded X_FC towards the camera's true mount."""
+    run = reconstruct_saved(blobs.scan, ReconstructOptions(out=tmp_path / "results"))
+    r = run.report
+    assert r["recording"]["camera_poses_given"] is False
+    assert r["recording"]["handeye"] == "run"
+    before = _mount_error(blobs.X_FC_true, blobs.X_FC_given)
+    after = _mount_error(blobs.X_FC_true, run.result.X_FC)
+    print("mount error before, after (mm, deg):", before, after)
+    diagnosis = run.result.handeye.diagnosis
+    assert diagnosis.converged
+    # Within the accuracy the correction claims (3 sigma), and well inside where it started.
+    assert after[0] < 3e3 * diagnosis.sigma_translation_m
+    assert after[1] < 3 * np.degrees(diagnosis.sigma_rotation_rad)
+    assert after[0] < before[0] / 3 and after[1] < before[1] / 3
+    # Noise-free depth: measured 0.02 mm / 0.001 deg.
+    assert after[0] < 0.1 and after[1] < 0.02
+
+
+def test_a_box_given_as_the_volume_keeps_only_what_lies_in_it(blobs, tmp_path, capfd):
+    """--volume with six numbers is a box: the fused points all lie in it, and the box cuts
+    the blob that sticks out on +x; the report and summary say it was a given box."""
+    box = (-0.06, -0.08, -0.07, 0.03, 0.08, 0.07)
+    out = tmp_path / "results"
+    argv = ["reconstruct", str(blobs.scan), "--out", str(out), "--no-icp", "--no-handeye"]
+    assert main([*argv, "--volume", *map(str, box)]) == 0
+    r = json.loads((out / "report.json").read_text())
+    assert r["working_volume"]["source"] == "given box"
+    np.testing.assert_allclose(r["working_volume"]["half_extent_m"], [0.045, 0.08, 0.07])
+    assert "a box of 90.0 x 160.0 x 140.0 mm" in (out / "summary.md").read_text()
+    import open3d as o3d
+
+    fused = np.asarray(o3d.io.read_point_cloud(str(out / r["outputs"]["fused_cloud"])).points)
+    assert len(fused) > 500
+    assert np.all(fused >= np.array(box[:3]) - 1e-9) and np.all(fused <= np.array(box[3:]) + 1e-9)
+    # The +x blob (centre x 0.045, radius 0.03) reached x = 0.075 m: cut at the box's 0.03 m.
+    assert fused[:, 0].max() > 0.025
+
+
+def test_a_volume_of_another_count_of_numbers_is_refused(blobs, tmp_path, capfd):
+    out = tmp_path / "results"
+    r = scanner(capfd, "reconstruct", blobs.scan, "--out", out, "--volume", "0", "0", "0")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+    assert "--volume: expected 4 numbers (a sphere: X Y Z R) or 6 (a box" in r.stderr
+    r = scanner(
+        capfd, "reconstruct", blobs.scan, "--out", out, "--volume", "0", "0", "0", "0", "1", "1"
+    )
+    assert r.returncode == 2 and "each maximum must exceed its minimum" in r.stderr
+    assert not out.exists()

@@ -15,6 +15,7 @@ from reconstruction.working_volume.volume import (
     common_view_centre,
     volume_from_common_view,
     volume_from_masks,
+    volume_of_box,
 )
 
 CENTRE = np.array([0.1, -0.05, 0.6])
@@ -117,3 +118,49 @@ def test_an_object_without_a_table_has_none():
     d = rng.normal(size=(5000, 3))
     sphere = 0.05 * d / np.linalg.norm(d, axis=1, keepdims=True)
     assert find_table(sphere, [np.array([0.0, 0.0, 0.5])]) is None
+
+
+def test_a_box_is_its_centre_half_extents_and_the_sphere_around_it():
+    volume = volume_of_box((-0.1, 0.0, 0.5), (0.1, 0.2, 0.8))
+    np.testing.assert_allclose(volume.centre_W, [0.0, 0.1, 0.65])
+    np.testing.assert_allclose(volume.half_extent_m, [0.1, 0.1, 0.15])
+    # The sphere through the box's corners: what the depth windows and crops follow.
+    assert volume.radius_m == pytest.approx(math.sqrt(0.1**2 + 0.1**2 + 0.15**2))
+    assert volume.source == "given box"
+
+
+@pytest.mark.parametrize(
+    ("lo", "hi", "needle"),
+    [
+        ((0, 0, 0), (1, 1, 0), "must exceed its first"),
+        ((0, 0, 0), (1, -1, 1), "must exceed its first"),
+        ((0, 0, math.nan), (1, 1, 1), "three finite numbers"),
+        ((0, 0), (1, 1, 1), "three finite numbers"),
+    ],
+)
+def test_a_box_with_bad_corners_is_refused(lo, hi, needle):
+    with pytest.raises(ScannerError, match=needle) as error:
+        volume_of_box(lo, hi)
+    assert "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize(
+    ("fields", "needle"),
+    [
+        (
+            {
+                "volume_box_m": (0, 0, 0, 1, 1, 1),
+                "volume_centre_m": (0, 0, 0),
+                "volume_radius_m": 1,
+            },
+            "give a box or a sphere",
+        ),
+        ({"volume_box_m": (0, 0, 0, 1, 1)}, "six finite numbers"),
+        ({"volume_box_m": (0, 0, 0, 1, 0, 1)}, "each maximum must exceed its minimum"),
+    ],
+)
+def test_recording_settings_refuse_a_bad_box(fields, needle):
+    from scanner.recordings.settings import RecordingProcessing
+
+    with pytest.raises(ScannerError, match=f"recording.volume_box_m: .*{needle}"):
+        RecordingProcessing(**fields)

@@ -1,5 +1,6 @@
 """Where the object is, without a cell model: a sphere in W from the object masks (a coarse
-visual hull) or, without masks, from the cameras' common view.
+visual hull) or, without masks, from the cameras' common view; or a sphere or a box the user
+gives.
 
 A robot cell knows where the object hangs; a recording from another system does not. The
 depth window of every stereo pair and the crop of every view follow from this sphere, so it
@@ -31,11 +32,14 @@ class PosedCamera:
 
 @dataclass(frozen=True, eq=False)
 class WorkingVolume:
-    """A sphere in W (metres) that holds the object, and how it was found."""
+    """A sphere in W (metres) that holds the object, and how it was found; for a box the user
+    gave (axis-aligned in W), the box's half extents too, with the sphere around it: the depth
+    windows and crops follow the sphere, the points kept follow the box."""
 
     centre_W: np.ndarray
     radius_m: float
-    source: str  # "masks", "common view", "given"
+    source: str  # "masks", "common view", "given", "given box"
+    half_extent_m: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         centre = np.asarray(self.centre_W, float)
@@ -45,6 +49,22 @@ class WorkingVolume:
             raise ScannerError(f"working volume: radius must be positive, got {self.radius_m} m")
         centre.setflags(write=False)
         object.__setattr__(self, "centre_W", centre)
+
+
+def volume_of_box(lo_W: Sequence[float], hi_W: Sequence[float]) -> WorkingVolume:
+    """The working volume of an axis-aligned box in W (its two opposite corners, metres)."""
+    lo, hi = np.asarray(lo_W, float), np.asarray(hi_W, float)
+    if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(np.r_[lo, hi])):
+        raise ScannerError("working volume: a box needs two corners of three finite numbers")
+    if not np.all(hi > lo):
+        raise ScannerError(
+            f"working volume: a box's second corner must exceed its first in x, y and z, got "
+            f"{lo.tolist()} and {hi.tolist()}"
+        )
+    half = (hi - lo) / 2
+    return WorkingVolume(
+        (lo + hi) / 2, float(np.linalg.norm(half)), "given box", tuple(map(float, half))
+    )
 
 
 def project(camera: PosedCamera, p_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

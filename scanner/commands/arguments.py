@@ -95,6 +95,16 @@ def positive_float(text: str) -> float:
     return v
 
 
+def finite_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text}")
+    return v
+
+
 class LengthOption(argparse.Action):
     """A length option (metavar LENGTH): a number in metres, or with a unit (`0.5mm`); stores
     metres in `dest` and the text as typed in the namespace's `typed` mapping, so that a value

@@ -14,6 +14,7 @@ from scanner.commands.arguments import (
     add_config_file_argument,
     add_config_option,
     add_output_arguments,
+    finite_float,
     mesh_formats_arg,
     name_arg,
     path_arg,
@@ -86,11 +87,12 @@ def add_reconstruct_parser(sub) -> None:
     )
     reconstruct.add_argument(
         "--volume",
-        type=float,
-        nargs=4,
-        metavar=("X", "Y", "Z", "R"),
-        help="imported recordings: the sphere the object lies in (centre and radius, metres, in "
-        "the recording's world) (default: from the masks, else the cameras' common view)",
+        type=finite_float,
+        nargs="+",
+        metavar="V",
+        help="imported recordings: where the object lies, in metres in the recording's world: "
+        "a sphere X Y Z R (centre, radius) or a box XMIN YMIN ZMIN XMAX YMAX ZMAX (default: "
+        "from the masks, else the cameras' common view)",
     )
     add_config_option(
         reconstruct,

@@ -67,6 +67,14 @@ class RecordingRun:
     results_dir: Path
 
 
+def _region_of_interest(volume: WorkingVolume) -> RegionOfInterest:
+    """The working volume as the filter's crop: its sphere, or the box the user gave."""
+    centre = tuple(map(float, volume.centre_W))
+    if volume.half_extent_m is None:
+        return RegionOfInterest("sphere", centre, float(volume.radius_m))
+    return RegionOfInterest("box", centre, float(volume.radius_m), volume.half_extent_m)
+
+
 def pipeline_config(
     settings: RecordingProcessing, volume: WorkingVolume, footprint: float, poses_given: bool
 ) -> ReconstructionConfig:
@@ -74,7 +82,7 @@ def pipeline_config(
     from its pixel footprint, and no hand-eye correction when the camera poses were given."""
     rec = settings.reconstruction
     voxel = settings.voxel_footprints * footprint
-    roi = RegionOfInterest("sphere", tuple(map(float, volume.centre_W)), float(volume.radius_m))
+    roi = _region_of_interest(volume)
     fused = settings.fused_footprints * footprint
     surfaces = replace(
         rec.surfaces,
@@ -84,9 +92,13 @@ def pipeline_config(
     )
     handeye = replace(rec.handeye, enabled=rec.handeye.enabled and not poses_given)
     register = rec.icp.enabled and (settings.register_given_poses or not poses_given)
+    # A pair's registration is pruned above an inlier RMS of one filter voxel, as the
+    # product's own scans have it (1 mm at 1 mm voxels): a recording of coarser pixels keeps
+    # its pairs (never a tighter limit than the scans').
+    max_rmse = max(rec.icp.max_inlier_rmse_m, voxel)
     return replace(
         rec,
-        icp=replace(rec.icp, enabled=register),
+        icp=replace(rec.icp, enabled=register, max_inlier_rmse_m=max_rmse),
         filter=replace(rec.filter, roi=roi, voxel_size_m=voxel),
         surfaces=surfaces,
         handeye=handeye,
@@ -133,6 +145,22 @@ def _keep_hook(views, settings, table: TablePlane | None):
     return keep
 
 
+def _colour_picture(
+    result: ReconstructionResult, views: RecordedViews, settings: RecordingProcessing, out: Path
+) -> Path | None:
+    """The model in the colours of its images, seen from where the cameras stood (None: a
+    model without colours)."""
+    from scanner.reconstruct.model_scene import headline_mesh
+    from scanner.reports.colour_picture import PICTURE_NAME, write_colour_picture
+
+    mesh = headline_mesh(result, settings.primary_surface)
+    if mesh is None or mesh.colors is None or not len(mesh.colors):
+        return None
+    return write_colour_picture(
+        mesh.vertices, mesh.triangles, mesh.colors, views.X_WC, out / PICTURE_NAME
+    )
+
+
 def reconstruct_recording(
     scan: SavedScan, settings: RecordingProcessing, out: Path, page: bool = True
 ) -> RecordingRun:
@@ -169,6 +197,10 @@ def reconstruct_recording(
         exports = prepare_exports(result.meshes, settings.mesh_export, settings.primary_surface)
         paths = save_outputs(result, staging, settings.mesh_formats, exports)
         report["outputs"] = {name: p.name for name, p in paths.items()}
+        with timer("picture"):
+            picture = _colour_picture(result, views, settings, staging)
+        if picture is not None:
+            report["outputs"]["colour_picture"] = picture.name
         report["reconstruction_stage_s"] = {**timer.seconds, **result.timings_s}
         report["reconstruct_s"] = time.perf_counter() - t0
         report["self_checks"] = self_check_record(report)
@@ -182,6 +214,21 @@ def reconstruct_recording(
     if page:
         report = add_recording_page(result, report, Path(out), views, settings)
     return RecordingRun(result, report, Path(out))
+
+
+def _with_volume(settings: RecordingProcessing, numbers) -> RecordingProcessing:
+    """--volume X Y Z R (a sphere) or XMIN YMIN ZMIN XMAX YMAX ZMAX (a box)."""
+    numbers = tuple(float(v) for v in numbers)
+    if len(numbers) == 4:
+        return replace(
+            settings, volume_centre_m=numbers[:3], volume_radius_m=numbers[3], volume_box_m=None
+        )
+    if len(numbers) == 6:
+        return replace(settings, volume_box_m=numbers, volume_centre_m=None, volume_radius_m=None)
+    raise ScannerError(
+        f"expected 4 numbers (a sphere: X Y Z R) or 6 (a box: XMIN YMIN ZMIN XMAX YMAX ZMAX), "
+        f"got {len(numbers)}"
+    )
 
 
 def reconstruct_recording_with(scan: SavedScan, options) -> RecordingRun:
@@ -218,10 +265,7 @@ def reconstruct_recording_with(scan: SavedScan, options) -> RecordingRun:
     if options.masks is not None:
         settings = replace(settings, masks=options.masks)
     if options.volume is not None:
-        x, y, z, r = options.volume
-        settings = for_flag(
-            "--volume", lambda: replace(settings, volume_centre_m=(x, y, z), volume_radius_m=r)
-        )
+        settings = for_flag("--volume", lambda: _with_volume(settings, options.volume))
     out = options.out or free_reconstruction_dir(scan.root)
     if options.out is not None:
         require_replaceable(options.out, RECONSTRUCTION_MARKER, options.force, "reconstruction")

@@ -42,6 +42,11 @@ def recording_report(scan, views, paired, volume, table, result, measured, setti
             "source": volume.source,
             "centre_m": [round(float(c), 6) for c in volume.centre_W],
             "radius_m": round(float(volume.radius_m), 6),
+            **(
+                {}
+                if volume.half_extent_m is None
+                else {"half_extent_m": [round(float(h), 6) for h in volume.half_extent_m]}
+            ),
         },
         "table": None
         if table is None
@@ -77,7 +82,14 @@ def write_recording_summary(report: dict, out: Path) -> Path:
         )
         + f"; masks used: {rec['masks_used']}.",
         f"- Hand-eye correction: {rec['handeye']}.",
-        f"- Working volume from {volume['source']}: radius {1e3 * volume['radius_m']:.1f} mm.",
+        f"- Working volume from {volume['source']}: "
+        + (
+            f"radius {1e3 * volume['radius_m']:.1f} mm."
+            if "half_extent_m" not in volume
+            else "a box of "
+            + " x ".join(f"{2e3 * h:.1f}" for h in volume["half_extent_m"])
+            + " mm."
+        ),
         "- Table: "
         + (
             "none found in the data."
@@ -115,6 +127,9 @@ def write_recording_summary(report: dict, out: Path) -> Path:
             f"({100 * h['common_share']:.1f} % of the points within {h['common_radius_mm']} mm).",
             "",
         ]
+    picture = report.get("outputs", {}).get("colour_picture")
+    if picture:
+        lines += [f"![The model in the colours of its images]({picture})", ""]
     path = Path(out) / "summary.md"
     atomic_write_text(path, "\n".join(lines))
     return path

@@ -32,6 +32,7 @@ from reconstruction.working_volume.volume import (
     WorkingVolume,
     volume_from_common_view,
     volume_from_masks,
+    volume_of_box,
 )
 from robots.sensors import sensor_named
 from scanner.recordings.settings import RecordingProcessing
@@ -93,8 +94,10 @@ def mask_used(settings: RecordingProcessing, k: int) -> bool:
 
 
 def working_volume(views: RecordedViews, settings: RecordingProcessing) -> WorkingVolume:
-    """The sphere the object lies in: given, else the hull of the masks used, else the sphere
-    every view holds whole about the cameras' common point."""
+    """The sphere (or box) the object lies in: given, else the hull of the masks used, else the
+    sphere every view holds whole about the cameras' common point."""
+    if settings.volume_box_m is not None:
+        return volume_of_box(settings.volume_box_m[:3], settings.volume_box_m[3:])
     if settings.volume_centre_m is not None:
         return WorkingVolume(np.array(settings.volume_centre_m), settings.volume_radius_m, "given")
     cameras = [views.posed(k) for k in range(len(views.indices))]
