@@ -173,3 +173,18 @@ def test_only_the_arm_package_imports_an_arm_model():
             lines = path.read_text().splitlines()
             found += [f"{name}:{k + 1}" for k, line in enumerate(lines) if pattern.match(line)]
     assert not found, found
+
+
+def test_no_arm_model_file_is_named_outside_the_arm_package():
+    # An arm's model (URDF, SDF, xacro) is named by the arm package or by an arm file only; the
+    # rest of the product, the VAL 3 driver included, gets its model through the Arm.
+    pattern = re.compile(r"[\w./-]+\.(urdf|sdf|xacro)\b", re.IGNORECASE)
+    found = []
+    for folder in ("scanner", "robots", "planners", "reconstruction"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            name = path.relative_to(ROOT).as_posix()
+            if name.startswith("robots/arms/"):
+                continue
+            for k, line in enumerate(path.read_text().splitlines()):
+                found += [f"{name}:{k + 1}: {m.group(0)}" for m in pattern.finditer(line)]
+    assert not found, found
