@@ -17,6 +17,7 @@ from reconstruction.calibration.boards import (
     BoardSpec,
     Detection,
     as_gray,
+    sb_corners_with_meta,
 )
 from reconstruction.common.errors import ScannerError
 
@@ -98,7 +99,7 @@ def _partial_grid(spec: BoardSpec, gray: np.ndarray) -> _PartialGrid | None:
     corners are ignored: SB finds 3x3 to 5x3 grids in plain photographs (Middlebury's stereo
     images)."""
     flags = cv2.CALIB_CB_LARGER | cv2.CALIB_CB_EXHAUSTIVE
-    found, corners, meta = cv2.findChessboardCornersSBWithMeta(gray, (3, 3), flags)
+    found, corners, meta = sb_corners_with_meta(gray, (3, 3), flags)
     if not found or corners is None or meta is None or meta.size < spec.point_count / 3:
         return None
     pixels = corners.reshape(-1, 2).astype(float)
