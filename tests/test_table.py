@@ -176,3 +176,79 @@ def test_the_next_best_face_lays_the_object_on_its_unseen_top():
     # Laid on its top, the cameras below see it.
     np.testing.assert_allclose(choice.down_W, UP, atol=1e-9)
     assert choice.gain > 0.1
+
+
+class _Person:
+    """A driver's request_rehang: what the person was told."""
+
+    def __init__(self) -> None:
+        self.told: list[str] = []
+
+    def __call__(self, words: str) -> None:
+        self.told.append(words)
+
+
+def test_a_resumed_pass_asks_for_the_face_recorded_before_anything_moved(tmp_path):
+    from types import SimpleNamespace
+
+    from scanner.configs.scan import ScanConfig
+    from scanner.scan.presentation.table import FACES_KEY, Table
+    from scanner.scan_dir.captures import CaptureStore
+
+    store = CaptureStore.create(tmp_path / "scan", {"hangings": [[0], [1]]})
+    asked = {"down_W": [1.0, 0.0, 0.0], "face": "the side facing +x", "words": "lay it on +x"}
+    # The scan stopped after asking for pass 2's face: the resume (no plan now) asks again.
+    store.update_manifest(**{FACES_KEY: {"0": {"words": "as put down"}, "1": asked}})
+    person = _Person()
+    world = SimpleNamespace(sim=None, hardware=SimpleNamespace(request_rehang=person))
+    table = Table(ScanConfig(presentation="table"), store)
+    table.present(world, 1, None)
+    assert person.told == ["lay it on +x"]
+    # Without a recorded face and without a plan (a fixed number of passes): upside down.
+    table.present(world, 2, None)
+    assert "upside down" in person.told[-1]
+    assert store.read_manifest()[FACES_KEY]["2"]["down_W"] == [0.0, 0.0, 1.0]
+    # A driver that cannot ask a person: one line naming what is missing.
+    from reconstruction.common.errors import ScannerError
+
+    with pytest.raises(ScannerError, match="Hardware.request_rehang is None"):
+        table.present(SimpleNamespace(sim=None, hardware=None), 3, None)
+
+
+@pytest.fixture(scope="module")
+def table_scan(tmp_path_factory):
+    import yaml
+
+    from scanner.configs.scan import load_scan_config
+    from scanner.scan.run import run_scan
+    from tests.conftest import shared_data
+    from tests.tiny_scan import TINY_SCAN
+
+    bunny = str(shared_data("meshes/stanford-bunny.obj"))
+    tmp = tmp_path_factory.mktemp("table")
+    path = tmp / "tiny.yaml"
+    config = {**TINY_SCAN, "object": bunny, "hangings": 2, "presentation": "table"}
+    path.write_text(yaml.safe_dump(config))
+    return run_scan(load_scan_config(path), tmp / "bunny").scan_dir
+
+
+def test_a_two_pass_table_scan_lays_it_upside_down_and_aligns_the_passes(table_scan):
+    import json
+
+    import yaml
+
+    r = json.loads((table_scan / "results" / "report.json").read_text())
+    assert r["status"] == "complete"
+    second = r["hangings"][1]
+    assert second["verified"]
+    # The bounds of the hanging tests (two hangings: 1 mm, 0.5 deg).
+    assert r["alignment_error_mm"] < 1.0 and r["alignment_error_deg"] < 0.5
+    passes = r["presentation"]["passes"]
+    assert r["presentation"]["kind"] == "table" and len(passes) == 2
+    assert "upside down" in passes[1]["why"] and passes[1]["down_W"] == [0.0, 0.0, 1.0]
+    manifest = yaml.safe_load((table_scan / "scan.yaml").read_text())
+    assert manifest["table_faces"]["1"]["down_W"] == [0.0, 0.0, 1.0]
+    # Upside down, the second pass sees what the first saw from above: more than one pass on
+    # the turntable ever sees of the bunny (below 0.87 there).
+    summary = (table_scan / "results" / "summary.md").read_text()
+    assert "Presentation: table" in summary and "upside down" in summary
