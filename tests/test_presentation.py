@@ -154,7 +154,9 @@ def test_a_presentation_the_cell_has_no_model_for_is_refused(tmp_path, capsys):
     assert "presentation" in err and "'shelf'" in err and "table" in err
     assert not out.exists()
     # The cell model's own check names the presentations it has a model for.
-    with pytest.raises(ScannerError, match="no model for 'shelf'; it has hanging, turntable, table"):
+    with pytest.raises(
+        ScannerError, match="no model for 'shelf'; it has hanging, turntable, table"
+    ):
         check_presentation("shelf")
 
 

@@ -150,9 +150,10 @@ def _face_extents(
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     weight = np.bincount(face_of, area, faces)
     centre = triangles.mean(axis=1)
-    centroid = np.stack(
-        [np.bincount(face_of, area * centre[:, k], faces) for k in range(3)], axis=1
-    ) / np.maximum(weight, 1e-300)[:, None]
+    centroid = (
+        np.stack([np.bincount(face_of, area * centre[:, k], faces) for k in range(3)], axis=1)
+        / np.maximum(weight, 1e-300)[:, None]
+    )
     reach = np.linalg.norm(triangles - centroid[face_of][:, None, :], axis=2).max(axis=1)
     radius = np.zeros(faces)
     np.maximum.at(radius, face_of, reach)

@@ -38,7 +38,9 @@ def table_geometry(cell) -> TableGeometry:
     """The support table of a cell (a WorkcellConfig: its object centre and size)."""
     cx, cy, cz = cell.object_center_m
     top = cz - cell.object_size_m / 2
-    return TableGeometry((cx, cy, top), TOP_SIDE_FRACTION * cell.object_size_m, TOP_THICKNESS_M, LEG_SIDE_M)
+    return TableGeometry(
+        (cx, cy, top), TOP_SIDE_FRACTION * cell.object_size_m, TOP_THICKNESS_M, LEG_SIDE_M
+    )
 
 
 def lying_pose(
