@@ -56,13 +56,14 @@ class RestingPose:
 
 def centre_of_mass(vertices: np.ndarray, triangles: np.ndarray | None = None) -> np.ndarray:
     """The centre of mass of the uniform solid a closed mesh bounds (signed tetrahedra from
-    the origin); without triangles, or for a mesh enclosing no volume, its convex hull's."""
+    the origin); without triangles, or for a mesh that bounds no solid (open, not wound one
+    way: its signed volumes then put the "centre" outside the object), its convex hull's."""
     v = np.asarray(vertices, float)
+    hull = ConvexHull(v)
     if triangles is not None and len(triangles):
         com = _solid_centroid(v, np.asarray(triangles))
-        if com is not None:
+        if com is not None and np.all(hull.equations[:, :3] @ com + hull.equations[:, 3] < 0):
             return com
-    hull = ConvexHull(v)
     return _solid_centroid(v, _outward(v, hull.simplices, v[hull.vertices].mean(axis=0)))
 
 

@@ -3,9 +3,9 @@ person lays it on another face, as the scanner asks in words and a picture.
 
 The first pass: the object as put down, resting on a stable face. With `hangings: auto` each
 further face is the next-best one (`next_face.py`: which of the model's stable resting poses
-shows most of what is still unseen); with a fixed number of passes the person turns it upside
-down each time (the side facing up now goes underneath). The face asked for is recorded in
-the manifest before anything moves (`table_faces`, by pass), so a resumed scan asks for the
+shows most of what is still unseen); with a fixed number of passes the person rolls it a
+quarter turn towards the robot each time. The face asked for is recorded in the manifest
+before anything moves (`table_faces`, by pass), so a resumed scan asks for the
 same one and the report says which face each pass lay on and why. Nothing tells the software
 the yaw the person laid it at: the pass alignment searches its hypotheses as for a hanging.
 The simulated person follows with a person's error (robots/simulation/laying.py).
@@ -24,7 +24,6 @@ from scanner.scan.presentation.next_face import face_words, lay_instruction, nex
 from scanner.scan.world import ScanWorld
 
 FACES_KEY = "table_faces"
-UP = np.array([0.0, 0.0, 1.0])
 
 
 class Table(Presentation):
@@ -44,7 +43,7 @@ class Table(Presentation):
         faces = self._faces()
         asked = faces.get(str(index)) if request is None else request
         if asked is None or "down_W" not in asked:
-            asked = _upside_down(index)
+            asked = _quarter_turn(index)
         # Recorded before anything moves: a resume asks for the same face.
         self.store.update_manifest(**{FACES_KEY: {**faces, str(index): asked}})
         if world.sim is not None:
@@ -107,20 +106,24 @@ class Table(Presentation):
                     asked[p]["asked_because"]
                     if p in asked
                     else f"a fixed number of passes (hangings: {self.config.hangings}): "
-                    "turned upside down"
+                    "rolled a quarter turn towards the robot"
                 )
             passes.append(record)
         return {"kind": self.kind, "passes": passes}
 
 
-def _upside_down(index: int) -> dict:
-    """The request of a pass without a plan: the side facing up now goes underneath."""
+def _quarter_turn(index: int) -> dict:
+    """The request of a pass without a plan: the side facing the robot now goes underneath, a
+    quarter turn (two of them turn it upside down). Not half a turn at once: the cameras look
+    from below, so an object turned upside down shows the next pass only a thin band of what
+    the pass before saw, too little to align the passes on."""
+    towards_robot = np.array([-1.0, 0.0, 0.0])
     return {
-        "down_W": [0.0, 0.0, 1.0],
-        "face": face_words(UP),
+        "down_W": [float(x) for x in towards_robot],
+        "face": face_words(towards_robot),
         "words": (
-            f"pass {index + 1}: turn the object upside down and lay it on the table on "
-            f"{face_words(UP)}, in the middle of the table, at any turn about the vertical; "
-            "then confirm"
+            f"pass {index + 1}: roll the object a quarter turn towards the robot and lay it on "
+            f"the table on {face_words(towards_robot)}, in the middle of the table, at any turn "
+            "about the vertical; then confirm"
         ),
     }
