@@ -204,15 +204,26 @@ def test_a_resumed_pass_asks_for_the_face_recorded_before_anything_moved(tmp_pat
     table = Table(ScanConfig(presentation="table"), store)
     table.present(world, 1, None)
     assert person.told == ["lay it on +x"]
-    # Without a recorded face and without a plan (a fixed number of passes): upside down.
+    # Without a recorded face and without a plan (a fixed number of passes): a quarter turn.
     table.present(world, 2, None)
-    assert "upside down" in person.told[-1]
-    assert store.read_manifest()[FACES_KEY]["2"]["down_W"] == [0.0, 0.0, 1.0]
+    assert "quarter turn towards the robot" in person.told[-1]
+    assert store.read_manifest()[FACES_KEY]["2"]["down_W"] == [-1.0, 0.0, 0.0]
     # A driver that cannot ask a person: one line naming what is missing.
     from reconstruction.common.errors import ScannerError
 
     with pytest.raises(ScannerError, match="Hardware.request_rehang is None"):
         table.present(SimpleNamespace(sim=None, hardware=None), 3, None)
+
+
+# Five views a pass at 640x480 (at 320x240 the stereo noise alone puts the passes' inlier RMS
+# over the alignment's 1 mm) and an exact mount, so the nominal one is kept (the hand-eye fit is
+# the hanging tests'): what this checks is that the passes lie on the faces asked for, align by
+# the search for hypotheses, and what is recorded; bench_presentation measures whole table
+# scans at the product's settings.
+TABLE = {
+    "camera": {"width_px": 640, "height_px": 480, "focal_px": 660.0},
+    "error_model": {"handeye_translation_m": 0.0, "handeye_rotation_rad": 0.0},
+}
 
 
 @pytest.fixture(scope="module")
@@ -226,29 +237,39 @@ def table_scan(tmp_path_factory):
 
     bunny = str(shared_data("meshes/stanford-bunny.obj"))
     tmp = tmp_path_factory.mktemp("table")
-    path = tmp / "tiny.yaml"
-    config = {**TINY_SCAN, "object": bunny, "hangings": 2, "presentation": "table"}
+    path = tmp / "small.yaml"
+    config = {**TINY_SCAN, **TABLE, "object": bunny, "hangings": 2, "presentation": "table"}
     path.write_text(yaml.safe_dump(config))
     return run_scan(load_scan_config(path), tmp / "bunny").scan_dir
 
 
-def test_a_two_pass_table_scan_lays_it_upside_down_and_aligns_the_passes(table_scan):
+@pytest.mark.slow
+def test_a_two_pass_table_scan_lays_it_on_its_side_and_aligns_the_passes(table_scan):
     import json
 
     import yaml
 
+    from robots.simulation.truth import hung_pose_of
+
     r = json.loads((table_scan / "results" / "report.json").read_text())
-    assert r["status"] == "complete"
-    second = r["hangings"][1]
-    assert second["verified"]
-    # The bounds of the hanging tests (two hangings: 1 mm, 0.5 deg).
+    assert r["status"] == "complete" and r["views_captured"] == 10
+    assert r["hangings"][1]["verified"]
+    # The bounds of the two-hanging test (640x480: about twice the product's stereo noise);
+    # measured 0.72 mm / 0.06 deg with these five views a pass.
     assert r["alignment_error_mm"] < 1.0 and r["alignment_error_deg"] < 0.5
     passes = r["presentation"]["passes"]
     assert r["presentation"]["kind"] == "table" and len(passes) == 2
-    assert "upside down" in passes[1]["why"] and passes[1]["down_W"] == [0.0, 0.0, 1.0]
+    assert "quarter turn towards the robot" in passes[1]["why"]
+    assert passes[1]["down_W"] == [-1.0, 0.0, 0.0]
+    # Recorded before the object moved (a resume asks for it again).
     manifest = yaml.safe_load((table_scan / "scan.yaml").read_text())
-    assert manifest["table_faces"]["1"]["down_W"] == [0.0, 0.0, 1.0]
-    # Upside down, the second pass sees what the first saw from above: more than one pass on
-    # the turntable ever sees of the bunny (below 0.87 there).
+    assert manifest["table_faces"]["1"]["down_W"] == [-1.0, 0.0, 0.0]
+    # The simulated person laid it so: the side that faced the robot lies (within the bunny's
+    # stable faces: the nearest one) underneath, and it lies on the table.
+    X0, X1 = (hung_pose_of(table_scan / "truth.yaml", p) for p in (0, 1))
+    down_O = X0[:3, :3].T @ [-1.0, 0.0, 0.0]
+    assert (X1[:3, :3] @ down_O) @ -UP > math.cos(math.radians(45))
+    # Seen from below on its side, the bunny shows what it hid standing: more than one pass.
+    assert r["observed_fraction"] > r["hangings"][0]["observed_fraction"] + 0.1
     summary = (table_scan / "results" / "summary.md").read_text()
-    assert "Presentation: table" in summary and "upside down" in summary
+    assert "Presentation: table" in summary and "quarter turn" in summary
