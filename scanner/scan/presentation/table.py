@@ -92,7 +92,7 @@ class Table(Presentation):
 
     def report(self, manifest: dict) -> dict:
         faces = manifest.get(FACES_KEY, {})
-        asked = {e["hanging"]: e["next"] for e in manifest.get("hanging_log", []) if "next" in e}
+        why = self.why(manifest, "rolled a quarter turn towards the robot")
         passes = []
         for p in range(len(manifest.get("hangings", []))):
             face = faces.get(str(p))
@@ -102,12 +102,7 @@ class Table(Presentation):
             if "down_W" in face:
                 record["down_W"] = face["down_W"]
             if p > 0:
-                record["why"] = (
-                    asked[p]["asked_because"]
-                    if p in asked
-                    else f"a fixed number of passes (hangings: {self.config.hangings}): "
-                    "rolled a quarter turn towards the robot"
-                )
+                record["why"] = why.get(p, "-")
             passes.append(record)
         return {"kind": self.kind, "passes": passes}
 
