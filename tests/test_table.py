@@ -40,10 +40,11 @@ def test_a_box_rests_on_its_six_faces_the_largest_most_often():
     assert [p.area_m2 for p in poses] == pytest.approx([0.02, 0.02, 0.008, 0.008, 0.004, 0.004])
     assert abs(poses[0].down_O[2]) == pytest.approx(1.0)
     assert poses[0].height_m == pytest.approx(0.02) and poses[-1].height_m == pytest.approx(0.1)
-    # Lying flat, the centre of mass is 2 cm inside the narrow side's edge... of the big face:
-    # half the face's shorter side (0.05 m).
+    # Lying flat, the centre of mass drops half the face's shorter side (0.05 m) inside it.
     assert poses[0].margin_m == pytest.approx(0.05)
     assert poses[0].probability > 3 * poses[-1].probability
+    # Resting on an end, that end's normal points down into the table.
+    np.testing.assert_allclose(poses[-1].R_TO() @ poses[-1].down_O, -UP, atol=1e-12)
     # A cube: every face a sixth (the solid angle of a face from the centre is 4 pi / 6).
     cube = resting_poses(_box(0.1, 0.1, 0.1), np.zeros(3))
     assert [p.probability for p in cube] == pytest.approx([1 / 6] * 6)
@@ -77,8 +78,9 @@ def test_a_cylinder_rests_on_its_caps_and_on_its_side_where_the_margin_allows():
     assert poses[0].probability == pytest.approx(poses[1].probability)
     side_margin = r * math.sin(math.pi / n)
     assert poses[-1].margin_m == pytest.approx(side_margin)
-    # The side's share is its solid angle: 2 atan(h / 2 r) / pi... of the whole sphere the
-    # band |elevation| < atan(h / 2 r) covers sin(atan(h / 2 r)).
+    # The side's share is its solid angle from the centre: the band of elevations within
+    # atan(h / 2r) of the equator, sin(atan(h / 2r)) of the sphere (the flats' corners make
+    # it a little less than the round side's).
     band = math.sin(math.atan(h / (2 * r)))
     assert sum(p.probability for p in poses[2:]) == pytest.approx(band, rel=0.02)
     # A margin wider than the flats leaves the caps.

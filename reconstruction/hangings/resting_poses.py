@@ -8,8 +8,8 @@ face's plane, falls inside the face: the margin is how far inside (a nudge small
 does not tip it over). Each face's probability is the quasi-static one: the solid angle the
 face subtends from the centre of mass over 4 pi, the chance that an object dropped in a random
 orientation, gently, lands on it; an unstable face's share rolls on to the stable ones, taken
-here in proportion to theirs (Moll & Erdmann, "Manipulation of pose distributions", IJRR 2002:
-the solid-angle model of resting-pose probability).
+here in proportion to theirs (the quasi-static estimator of Goldberg et al., "Part pose
+statistics: estimators and experiments", IEEE Trans. Robotics and Automation, 1999).
 """
 
 from __future__ import annotations

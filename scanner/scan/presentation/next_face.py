@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from reconstruction.common.transforms import rotation_about, rotation_between
+from reconstruction.common.transforms import rotation_about
 from reconstruction.evaluation.coverage import SeenSurface
 from reconstruction.hangings.resting_poses import centre_of_mass, resting_poses
 from scanner.scan.next_hanging import UP, YAWS, _side, unseen_sight
@@ -64,7 +64,7 @@ def next_best_face(
     for pose in poses[:MAX_FACES]:
         if pose.down_O @ -UP > math.cos(SAME_FACE_RAD):
             continue
-        R = rotation_between(pose.down_O, -UP)
+        R = pose.R_TO()
         gain = sum(
             sight.gain(d, rotation_about(UP, 2 * math.pi * j / yaws) @ R) for j in range(yaws)
         )
