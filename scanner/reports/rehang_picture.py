@@ -24,10 +24,10 @@ def write_rehang_picture(
     centre_W,
     hanging: int,
     path: Path,
-    title: str | None = None,
+    heading: str | None = None,
 ) -> None:
     """The picture for pass `hanging` (0-based) in the cell frame of the object as it hangs
-    (`title`: another instruction for the arrow and the star, as a table's "lay it on")."""
+    (`heading`: another instruction for the arrow and the star, as a table's "lay it on")."""
     p, c = seen.samples.points, np.asarray(centre_W, float)
     rng = np.random.default_rng(0)
     pick = rng.choice(len(p), min(MAX_POINTS, len(p)), replace=False)
@@ -59,7 +59,7 @@ def write_rehang_picture(
         ax.set_ylabel(f"{yl} (m)")
     axes[0].legend(markerscale=12, loc="lower left", fontsize=8)
     fig.suptitle(
-        title
+        heading
         or f"Hanging {hanging + 1}: bring the side the blue arrow points to straight up, clamp at "
         "the green star; red: not seen yet"
     )

@@ -73,12 +73,12 @@ class Table(Presentation):
             return None
         # Beside the captures, not in results/: a reconstruction writes that folder anew.
         name = f"lay_{index + 1}.png"
-        title = (
+        heading = (
             f"Pass {index + 1}: lay the object on the side the blue arrow points to (the green "
             "star touches the table); red: not seen yet"
         )
         write_rehang_picture(
-            seen, choice.down_W, choice.touch_W, centre, index, self.store.root / name, title
+            seen, choice.down_W, choice.touch_W, centre, index, self.store.root / name, heading
         )
         return {
             "down_W": [float(x) for x in choice.down_W],
