@@ -143,13 +143,21 @@ def test_a_turntable_that_lies_or_is_silent_is_refused_before_anything_moves(
 
 
 def test_a_presentation_the_cell_has_no_model_for_is_refused(tmp_path, capsys):
+    from reconstruction.common.errors import ScannerError
+    from robots.models.workcell import check_presentation
     from scanner.commands.main import main
 
     out = tmp_path / "scan"
-    config = _tiny_turntable(tmp_path)
-    assert main(["scan", "--config", config, "--presentation", "table", "--out", str(out)]) == 2
-    assert "presentation: the cell has no model for 'table'" in _one_line_error(capsys)
+    config = _tiny_turntable(tmp_path, presentation="shelf")
+    assert main(["scan", "--config", config, "--out", str(out)]) == 2
+    err = _one_line_error(capsys)
+    assert "presentation" in err and "'shelf'" in err and "table" in err
     assert not out.exists()
+    # The cell model's own check names the presentations it has a model for.
+    with pytest.raises(
+        ScannerError, match="no model for 'shelf'; it has hanging, turntable, table"
+    ):
+        check_presentation("shelf")
 
 
 def test_a_turntable_that_slips_mid_scan_stops_it_and_a_resume_keeps_the_angles(

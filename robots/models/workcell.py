@@ -258,8 +258,9 @@ def keep_out_radius_m(config: WorkcellConfig) -> float:
     return config.object_size_m * math.sqrt(3) / 2
 
 
-# What each presentation puts into the cell to hold the object (robots/models/turntable.py).
-CELL_PRESENTATIONS = ("hanging", "turntable")
+# What each presentation puts into the cell to hold the object (robots/models/turntable.py,
+# robots/models/table.py).
+CELL_PRESENTATIONS = ("hanging", "turntable", "table")
 
 
 def check_presentation(presentation: str) -> None:
@@ -279,7 +280,7 @@ def _add_object(
     presentation: str = "hanging",
 ) -> None:
     """The object (a welded body, so it has its own render label) and the rod it hangs from
-    (on a turntable: the disc and post it stands on).
+    (on a turntable: the disc and post it stands on; on the table: its top and leg).
 
     Without a mesh (the planner's view: the object is unknown) the object is a collision-only
     keep-out sphere around the scan centre and the rod hangs down to the sphere's top.
@@ -312,6 +313,11 @@ def _add_object(
         from robots.models.turntable import add_turntable
 
         add_turntable(plant, config)
+        return
+    if presentation == "table":
+        from robots.models.table import add_table
+
+        add_table(plant, config)
         return
     p_WA = X_WO @ p_OA
     length = config.rod_top_z_m - p_WA[2]
@@ -348,7 +354,8 @@ def build_workcell(
     `X_WO`: the object's pose (default the configuration's; a re-hung object differs).
     `meshcat_prefix`: where in meshcat's scene tree the geometry goes (Drake's default puts it
     under /drake/visualizer; a path starting with / is absolute). `presentation`: what holds
-    the object, "hanging" (the rod) or "turntable" (robots/models/turntable.py).
+    the object, "hanging" (the rod), "turntable" (robots/models/turntable.py) or "table"
+    (robots/models/table.py).
     """
     check_presentation(presentation)
     builder = RobotDiagramBuilder(time_step=0.0)

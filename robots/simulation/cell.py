@@ -70,8 +70,9 @@ def create_simulation(
     `object_spec=None` builds the cell without an object (calibration); `extras` are passed to
     `build_workcell` (e.g. a calibration board). `rgbd`: the tool carries this depth camera
     (X_FC_nominal then places its colour camera) instead of the stereo pair. `arm` starts at
-    `q0` (None: its home). `presentation`: the object hangs from the rod ("hanging") or stands
-    on the turntable ("turntable", at its zero angle unless `X_WO` is given).
+    `q0` (None: its home). `presentation`: the object hangs from the rod ("hanging"), stands
+    on the turntable ("turntable", at its zero angle unless `X_WO` is given) or lies on the
+    table ("table", on the face underneath as configured unless `X_WO` is given).
     `device(workcell, truth, true_joint_positions)`: the tool's simulated camera (a sensor
     kind's, robots.sensors; None: the stereo pair, or the depth camera with `rgbd`).
     """
@@ -81,6 +82,10 @@ def create_simulation(
     mesh = None if object_spec is None else resolve_object(object_spec, cell.object_size_m)
     if X_WO is None and presentation == "turntable" and mesh is not None:
         X_WO = standing_pose(cell, mesh.vertices)
+    if X_WO is None and presentation == "table" and mesh is not None:
+        from robots.simulation.laying import first_lying_pose
+
+        X_WO = first_lying_pose(cell, mesh)
     if X_WO is None:  # else the pose the operator hung it in (a resumed scan's truth file)
         X_WO = hung_pose(cell.X_WO, error_model.seed, hanging)
     truth = sample_truth(error_model, X_FC_nominal, stereo, X_WO, rgbd, arm.joint_count)

@@ -101,8 +101,9 @@ def add_scan_parser(sub) -> None:
         "--presentation",
         choices=("hanging", "table", "turntable"),
         help="how the object is offered and turned between passes: hanging (from the rod, "
-        "re-hung by a person) or turntable (turned by the scanner; --hangings is then its "
-        "number of passes) (default %(config_default)s)",
+        "re-hung by a person), turntable (turned by the scanner; --hangings is then its "
+        "number of passes) or table (lying on the support table, laid on another face by a "
+        "person) (default %(config_default)s)",
         config=ConfigDefault(SCAN_CONFIG, "presentation"),
     )
     add_config_option(

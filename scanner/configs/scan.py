@@ -133,8 +133,9 @@ class ScanConfig:
     # hanging adds less than `min_hanging_gain` of the surface. A number forces that many.
     hangings: int | str = AUTO
     # How the object is presented: "hanging" (from the rod, re-hung by a person between
-    # passes) or "turntable" (standing on a motorised turntable the scanner turns between
-    # passes; `hangings` is then its number of passes). The cell must have a model of it.
+    # passes), "turntable" (standing on a motorised turntable the scanner turns between
+    # passes; `hangings` is then its number of passes) or "table" (lying on the support
+    # table, laid on another face by a person between passes). The cell must have a model.
     presentation: str = "hanging"
     coverage_target: float = fraction(0.97)
     max_hangings: int = integer(4, maximum=MAX_HANGINGS)

@@ -164,12 +164,16 @@ def geometry_filter(
 def fixture_line(config: ScanConfig) -> FixtureLine:
     """The rod the object hangs from: the vertical above the scan centre (in every hanging:
     the cell holds the rod, the operator hangs the object anew from it); on a turntable, the
-    post below it."""
+    post below it; on the table, its leg (the half diagonal of its square section)."""
     cell = config.cell
     if config.presentation == "turntable":
         from robots.models.turntable import POST_RADIUS_M
 
         return FixtureLine(tuple(cell.object_center_m), (0.0, 0.0, -1.0), POST_RADIUS_M)
+    if config.presentation == "table":
+        from robots.models.table import LEG_SIDE_M
+
+        return FixtureLine(tuple(cell.object_center_m), (0.0, 0.0, -1.0), LEG_SIDE_M / 2**0.5)
     return FixtureLine(tuple(cell.object_center_m), (0.0, 0.0, 1.0), cell.rod_radius_m)
 
 

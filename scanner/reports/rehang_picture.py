@@ -18,9 +18,16 @@ MAX_POINTS = 12_000
 
 
 def write_rehang_picture(
-    seen: SeenSurface, up_W: np.ndarray, clamp_W: np.ndarray, centre_W, hanging: int, path: Path
+    seen: SeenSurface,
+    up_W: np.ndarray,
+    clamp_W: np.ndarray,
+    centre_W,
+    hanging: int,
+    path: Path,
+    heading: str | None = None,
 ) -> None:
-    """The picture for pass `hanging` (0-based) in the cell frame of the object as it hangs."""
+    """The picture for pass `hanging` (0-based) in the cell frame of the object as it hangs
+    (`heading`: another instruction for the arrow and the star, as a table's "lay it on")."""
     p, c = seen.samples.points, np.asarray(centre_W, float)
     rng = np.random.default_rng(0)
     pick = rng.choice(len(p), min(MAX_POINTS, len(p)), replace=False)
@@ -52,8 +59,9 @@ def write_rehang_picture(
         ax.set_ylabel(f"{yl} (m)")
     axes[0].legend(markerscale=12, loc="lower left", fontsize=8)
     fig.suptitle(
-        f"Hanging {hanging + 1}: bring the side the blue arrow points to straight up, clamp at the "
-        "green star; red: not seen yet"
+        heading
+        or f"Hanging {hanging + 1}: bring the side the blue arrow points to straight up, clamp at "
+        "the green star; red: not seen yet"
     )
     fig.tight_layout()
     fig.savefig(path, dpi=100)

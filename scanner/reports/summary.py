@@ -86,10 +86,16 @@ def _decision_lines(report: dict) -> list[str]:
 
 def _presentation_lines(report: dict) -> list[str]:
     """On a turntable: each pass's angle, the turn before it and why it was made; whether the
-    known turns verified without the search, and the axis they calibrated."""
+    known turns verified without the search, and the axis they calibrated. On the table: the
+    face each pass lay on and why it was asked for."""
     presented = report.get("presentation")
     if not presented:
         return []
+    if presented["kind"] == "table":
+        lines = ["", "## Presentation: table", "", "| pass | laid on | why |", "|---|---|---|"]
+        for p in presented["passes"]:
+            lines.append(f"| {p['pass']} | {p['laid_on']} | {p.get('why', '-')} |")
+        return lines
     lines = [
         "",
         f"## Presentation: {presented['kind']}",

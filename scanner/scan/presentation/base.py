@@ -38,6 +38,14 @@ class Presentation(abc.ABC):
         the pass now): at least `words` (what is done, for the log and the report) and
         `expected_gain`; None when no further pass would show anything unseen."""
 
+    def why(self, manifest: dict, fixed: str) -> dict[int, str]:
+        """Why each further pass (0-based, from 1) was made: the scanner's reason where it asked
+        for the pass (`hangings: auto`), else `fixed` after the number of passes."""
+        asked = {e["hanging"]: e["next"] for e in manifest.get("hanging_log", []) if "next" in e}
+        passes = len(manifest.get("hangings", []))
+        fixed = f"a fixed number of passes (hangings: {self.config.hangings}), {fixed}"
+        return {p: asked[p]["asked_because"] if p in asked else fixed for p in range(1, passes)}
+
     def report(self, manifest: dict) -> dict | None:
         """What the scan report says of the presentation (None: nothing beyond the hangings'
         own keys)."""

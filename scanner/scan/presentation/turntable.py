@@ -103,17 +103,12 @@ class Turntable(Presentation):
 
     def report(self, manifest: dict) -> dict:
         angles = [float(a) for a in manifest.get(ANGLES_KEY, [])]
-        asked = {e["hanging"]: e["next"] for e in manifest.get("hanging_log", []) if "next" in e}
+        why = self.why(manifest, "turned evenly around")
         passes = []
         for p, angle in enumerate(angles):
             record = {"pass": p + 1, "angle_deg": math.degrees(angle)}
             if p > 0:
                 record["turn_deg"] = math.degrees(wrapped(angle - angles[p - 1]))
-                record["why"] = (
-                    asked[p]["asked_because"]
-                    if p in asked
-                    else f"a fixed number of passes (hangings: {self.config.hangings}), "
-                    "turned evenly around"
-                )
+                record["why"] = why.get(p, "-")
             passes.append(record)
         return {"kind": self.kind, "passes": passes}

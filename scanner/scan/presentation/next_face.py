@@ -1,0 +1,97 @@
+"""The next-best face of an object on the table: the stable resting pose whose pass newly sees
+most of what the passes so far have not.
+
+The same coverage machinery as the next-best hanging (`scanner.scan.next_hanging`): laying the
+object on the face with outward normal n (of the model as it lies now) turns it by R, the
+smallest turn that takes n down, then by a yaw nobody controls; for the cameras that is turning
+them by R^T about the centre, and a candidate's gain is the share of the closed model's unseen
+samples the pass's cameras would see after it, averaged over yaws. Unlike a hanging, only the
+faces the model can rest on are candidates: its hull's faces that hold its centre of mass
+(reconstruction/hangings/resting_poses.py), computed on the closed model so far.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from reconstruction.common.transforms import rotation_about
+from reconstruction.evaluation.coverage import SeenSurface
+from reconstruction.hangings.resting_poses import centre_of_mass, resting_poses
+from scanner.scan.next_hanging import UP, YAWS, _side, unseen_sight
+
+# A face whose edge is this close to the centre of mass tips over at a nudge: a person laying
+# the object puts it down a few millimetres off, and the model so far is a few off itself.
+MIN_MARGIN_M = 0.005
+# The most probable faces considered: a tessellated round side is many thin faces, and the
+# gain of neighbouring ones differs by less than the person's yaw averages out.
+MAX_FACES = 16
+# A face within this of the one underneath now is where the object lies already.
+SAME_FACE_RAD = math.radians(20.0)
+
+
+@dataclass(frozen=True, eq=False)
+class FaceChoice:
+    """Lay the object on the side facing `down_W` now (unit, cell frame of the pass now); its
+    face's centre `touch_W` touches the table; `gain`: the expected share of the closed model
+    newly seen; `probability`: how often the model lands on that face when dropped."""
+
+    down_W: np.ndarray
+    touch_W: np.ndarray
+    gain: float
+    probability: float
+
+
+def next_best_face(
+    seen: SeenSurface,
+    centre_W: Sequence[float],
+    radius_m: float,
+    view_directions: np.ndarray,
+    yaws: int = YAWS,
+) -> FaceChoice | None:
+    """The stable face of the closed model to lay it on next (the same view directions, unit,
+    from the centre); None when nothing is unseen or the model rests on no other face."""
+    sight = unseen_sight(seen, centre_W, radius_m)
+    if sight is None:
+        return None
+    v, t = seen.surface.vertices, seen.surface.triangles
+    poses = resting_poses(v, centre_of_mass(v, t), MIN_MARGIN_M)
+    d = np.asarray(view_directions, float).reshape(-1, 3)
+    best: FaceChoice | None = None
+    for pose in poses[:MAX_FACES]:
+        if pose.down_O @ -UP > math.cos(SAME_FACE_RAD):
+            continue
+        R = pose.R_TO()
+        gain = sum(
+            sight.gain(d, rotation_about(UP, 2 * math.pi * j / yaws) @ R) for j in range(yaws)
+        )
+        gain /= yaws
+        if best is None or gain > best.gain:
+            best = FaceChoice(pose.down_O.copy(), pose.centre_O.copy(), gain, pose.probability)
+    return best
+
+
+def turn_deg(down_W: np.ndarray) -> float:
+    """How far the object turns to bring `down_W` down."""
+    return math.degrees(math.acos(float(np.clip(np.asarray(down_W) @ -UP, -1.0, 1.0))))
+
+
+def face_words(down_W: np.ndarray) -> str:
+    """The side facing `down_W` now, in words and as a direction in the cell frame."""
+    a = np.asarray(down_W, float)
+    return f"the side now facing {_side(a)} (direction {a[0]:+.2f} {a[1]:+.2f} {a[2]:+.2f})"
+
+
+def lay_instruction(choice: FaceChoice, index: int, picture: str | None) -> str:
+    """What the person is told for pass `index` (0-based)."""
+    p = choice.touch_W
+    seen_in = f" (see {picture})" if picture else ""
+    return (
+        f"pass {index + 1}: turn the object by about {turn_deg(choice.down_W):.0f} deg and lay "
+        f"it on the table on {face_words(choice.down_W)}: the point now at x {p[0]:.3f}, "
+        f"y {p[1]:.3f}, z {p[2]:.3f} m touches the table; put it down in the middle of the "
+        f"table, at any turn about the vertical{seen_in}; then confirm"
+    )
