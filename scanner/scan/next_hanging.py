@@ -112,7 +112,7 @@ def _clamp_point(seen: SeenSurface, up_W: np.ndarray, centre_W: np.ndarray) -> n
     return v[int(np.argmax((v - centre_W) @ up_W))]
 
 
-def _side(vector: np.ndarray) -> str:
+def side_name(vector: np.ndarray) -> str:
     """Where a direction points in the cell, in words (the robot stands at the origin, the
     object in front of it along +x)."""
     x, y, z = vector
@@ -133,7 +133,7 @@ def instruction(choice: HangingChoice, hanging: int, picture: str | None) -> str
     seen_in = f" (see {picture})" if picture else ""
     return (
         f"hanging {hanging + 1}: turn the object by about {turn:.0f} deg so that the side now "
-        f"facing {_side(a)} (direction {a[0]:+.2f} {a[1]:+.2f} {a[2]:+.2f} in the cell frame) "
+        f"facing {side_name(a)} (direction {a[0]:+.2f} {a[1]:+.2f} {a[2]:+.2f} in the cell frame) "
         f"points straight up; clamp it there, at the point now at x {p[0]:.3f}, y {p[1]:.3f}, "
         f"z {p[2]:.3f} m, and hang it with its middle where it was{seen_in}; then confirm"
     )

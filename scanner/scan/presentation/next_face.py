@@ -21,7 +21,7 @@ import numpy as np
 from reconstruction.common.transforms import rotation_about
 from reconstruction.evaluation.coverage import SeenSurface
 from reconstruction.hangings.resting_poses import centre_of_mass, resting_poses
-from scanner.scan.next_hanging import UP, YAWS, _side, unseen_sight
+from scanner.scan.next_hanging import UP, YAWS, side_name, unseen_sight
 
 # A face whose edge is this close to the centre of mass tips over at a nudge: a person laying
 # the object puts it down a few millimetres off, and the model so far is a few off itself.
@@ -82,7 +82,7 @@ def turn_deg(down_W: np.ndarray) -> float:
 def face_words(down_W: np.ndarray) -> str:
     """The side facing `down_W` now, in words and as a direction in the cell frame."""
     a = np.asarray(down_W, float)
-    return f"the side now facing {_side(a)} (direction {a[0]:+.2f} {a[1]:+.2f} {a[2]:+.2f})"
+    return f"the side now facing {side_name(a)} (direction {a[0]:+.2f} {a[1]:+.2f} {a[2]:+.2f})"
 
 
 def lay_instruction(choice: FaceChoice, index: int, picture: str | None) -> str:
