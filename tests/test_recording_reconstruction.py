@@ -51,7 +51,11 @@ def no_masks(dtu_scan, tmp_path_factory):
 def test_the_model_agrees_with_the_masks_it_did_not_use(even_masks):
     r = even_masks.report
     assert r["recording"]["handeye"] == "not run: the recording gave camera poses"
-    assert [(p["reference"], p["other"]) for p in r["pairs"]][:2] == [(0, 1), (1, 0)]
+    pairs = [(p["reference"], p["other"]) for p in r["pairs"]]
+    # Each view the reference of two pairs, its nearest partner first (the arm's neighbour).
+    assert [i for i, _ in pairs] == [i for i in range(VIEWS) for _ in range(2)]
+    assert pairs[0::2][:2] == [(0, 1), (1, 0)] and all(i != j for i, j in pairs)
+    assert len(set(pairs)) == len(pairs)
     # Calibrated poses: within the limit above which a pair's pose is refined.
     assert all(p["epipolar_median_px"] < 1.0 for p in r["pairs"]) and r["pairs_refined"] == 0
     s = r["silhouette"]

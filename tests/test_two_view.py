@@ -31,7 +31,12 @@ from reconstruction.two_view.epipolar import (
     match_features,
 )
 from reconstruction.two_view.pairing import PairingConfig, pair_views
-from reconstruction.two_view.rectification import pair_rig, rotate_camera, rotate_image
+from reconstruction.two_view.rectification import (
+    pair_rig,
+    rectifying_rotations,
+    rotate_camera,
+    rotate_image,
+)
 from reconstruction.two_view.scaling import downscaled_camera, downscaled_image, downscaled_mask
 
 DTU = "real/dtu_mvs_scan24"
@@ -248,6 +253,33 @@ def test_plane_depths_for_every_baseline_direction(p_W_other, quarter_turns):
     signed_depth_m = (transform_points(depth.X_CD, p_D) - centre) @ X_WP[:3, 2]
     assert len(z) > 0.6 * camera.width * camera.height
     assert np.median(np.abs(signed_depth_m)) < 0.8e-3
+
+
+@pytest.mark.parametrize("roll_deg", [-10.0, 10.0])
+@pytest.mark.parametrize(
+    "p_C_other", [(0.06, -0.055, 0.0), (0.055, 0.06, 0.0), (-0.06, 0.055, 0.0)]
+)
+def test_near_diagonal_baseline_rectifies_along_rows(p_C_other, roll_deg):
+    """A baseline 42 deg off the image's rows with 10 deg of roll between the views (DTU's
+    views 10 and 13): after the quarter turn the baseline lies along x, and so it must after
+    rectification (stereoRectify alone turned half of these cases vertical: baseline 0 along
+    x, and the pair failed). Any point then images on one rectified row in both views, at a
+    disparity f b / z."""
+    camera = PinholeCamera(
+        np.array([[480.0, 0, 159.5], [0, 480, 119.5], [0, 0, 1]]), np.zeros(5), 320, 240
+    )
+    eye = np.asarray(p_C_other)
+    centre = np.array([0.0, 0.0, 0.5])
+    roll = rotation_about(np.array([0.0, 0.0, 1.0]), math.radians(roll_deg))
+    rig = pair_rig(camera, camera, make_pose(rotation_between([0, 0, 1], centre - eye) @ roll, eye))
+    R1, R2, baseline_m = rectifying_rotations(rig)
+    assert baseline_m == pytest.approx(np.linalg.norm(eye), rel=1e-9)
+    p_V = np.random.default_rng(0).uniform([-0.1, -0.1, 0.4], [0.1, 0.1, 0.6], (50, 3))
+    p_1 = p_V @ R1.T
+    p_2 = (p_V @ rig.stereo.R.T + rig.stereo.T) @ R2.T
+    assert np.allclose(p_1[:, 1] / p_1[:, 2], p_2[:, 1] / p_2[:, 2], atol=1e-12)
+    disparity = p_1[:, 0] / p_1[:, 2] - p_2[:, 0] / p_2[:, 2]
+    assert np.allclose(disparity, baseline_m / p_1[:, 2], atol=1e-12)
 
 
 def _render_distorted(camera: PinholeCamera, X_WC: np.ndarray, texture: np.ndarray):

@@ -35,7 +35,12 @@ import cv2
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
-from reconstruction.common.transforms import invert, make_pose
+from reconstruction.common.transforms import (
+    invert,
+    make_pose,
+    matrix_to_rotvec,
+    rotvec_to_matrix,
+)
 from reconstruction.stereo.camera_model import PinholeCamera, StereoCamera
 from reconstruction.stereo.rectification import Rectification, rectification_of
 
@@ -148,22 +153,28 @@ def _footprint(camera: PinholeCamera, R_rect: np.ndarray, focal_px: float) -> np
 
 
 def rectifying_rotations(rig: PairRig) -> tuple[np.ndarray, np.ndarray, float]:
-    """(R1, R2, baseline_m) of the pair's rectification (stereoRectify's rotations from the
-    turned frames V and O' to the rectified ones, which do not depend on the rectified grid)."""
+    """(R1, R2, baseline_m) of the pair's rectification: the rotations from the turned frames
+    V and O' to the rectified ones (which do not depend on the rectified grid), always with
+    the baseline along x.
+
+    This is stereoRectify's construction (Bouguet's: both cameras turned by half the relative
+    rotation, then a common rotation puts the baseline on the x axis) without its choice of
+    axis: stereoRectify rectifies vertically when the half-turned baseline's |y| is not below
+    its |x|, which a baseline near the image's diagonal reaches although the quarter turn put
+    it on x (DTU's views 10 and 13: 42 deg, and 10 deg of roll between them). Its rectified
+    baseline along x was then zero. Elsewhere the result is stereoRectify's."""
     model = rig.stereo
-    L, R = model.left, model.right
-    R1, R2, _, P2, _, _, _ = cv2.stereoRectify(
-        L.K,
-        L.distortion,
-        R.K,
-        R.distortion,
-        model.image_size,
-        model.R,
-        model.T,
-        flags=cv2.CALIB_ZERO_DISPARITY,
-        alpha=1.0,
-    )
-    return R1, R2, float(-P2[0, 3] / P2[0, 0])
+    r_r = rotvec_to_matrix(-0.5 * matrix_to_rotvec(model.R))
+    t = r_r @ model.T
+    norm_t = float(np.linalg.norm(t))
+    uu = np.array([1.0 if t[0] > 0 else -1.0, 0.0, 0.0])
+    ww = np.cross(t, uu)
+    norm_w = float(np.linalg.norm(ww))
+    if norm_w > 0.0:
+        ww *= math.acos(min(abs(t[0]) / norm_t, 1.0)) / norm_w
+    wR = rotvec_to_matrix(ww)
+    R1, R2 = wR @ r_r.T, wR @ r_r
+    return R1, R2, float(-(R2 @ model.T)[0])
 
 
 # Beyond f b / z_min, the SGBM search reaches up to this many more pixels: the 2 px margin of

@@ -1,9 +1,9 @@
 """An imported recording's views turned into the reconstruction's input: the working volume,
 the view pairs and each pair's cloud in its reference camera's frame.
 
-One camera moved between views: each view is the reference of a pair with its nearest usable
-neighbour (`two_view.pairing`), whose cloud comes from the product's own matcher
-(`two_view.cloud`). The clouds' pose is the reference view's, so everything after them (the
+One camera moved between views: each view is the reference of pairs with its nearest usable
+neighbours (`two_view.pairing`; two by default), whose clouds come from the product's own matcher
+(`two_view.cloud`). A cloud's pose is the reference view's, so everything after them (the
 filter, registration, fusion, surfaces) is what a scan of this product runs.
 """
 
