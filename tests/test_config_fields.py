@@ -44,6 +44,14 @@ CALIBRATE_OVERRIDES = {
     "placement.facing_elevation_rad": 2.0,
 }
 
+# Fields only some kinds of their record read, with the sibling that makes the record one of
+# them: a nested record's keys the file leaves out keep the enclosing default (calibrate's board
+# is a chessboard, which has no markers).
+SIBLINGS = {
+    "board.marker_m": {"kind": "charuco"},
+    "board.dictionary": {"kind": "charuco"},
+}
+
 # (the file's name, its loader, the overrides): each record's every field.
 RECORDS = {
     ScanConfig: ("scan.yaml", load_scan_config, SCAN_OVERRIDES),
@@ -66,9 +74,31 @@ def test_a_bad_value_of_any_field_is_refused_at_load(tmp_path, cls, path, tp):
     name, load, overrides = RECORDS[cls]
     key = ".".join(path)
     config_file = tmp_path / name
-    config_file.write_text(yaml.safe_dump(nested(path, bad_value(path, tp, overrides))))
+    parent = {path[-1]: bad_value(path, tp, overrides), **SIBLINGS.get(key, {})}
+    config_file.write_text(yaml.safe_dump(nested(path[:-1], parent)))
     with pytest.raises(ScannerError) as refused:
         load(config_file)
     message = str(refused.value)
     assert message.startswith(f"{config_file}: "), message
     assert key in message and "\n" not in message, message
+
+
+def test_a_nested_section_keeps_its_enclosing_defaults_for_the_keys_it_leaves_out(tmp_path):
+    """A recording's matcher has a 5 px block and each view two partners, where the records'
+    classes have 3 px and one: a file that sets one other key of those sections keeps them."""
+    from scanner.configs.typed_yaml import load_yaml_file
+    from scanner.recordings.settings import RecordingProcessing
+
+    defaults = RecordingProcessing()
+    assert defaults.stereo.block_size_px == 5 and defaults.pairing.pairs_per_view == 2
+    path = tmp_path / "recording.yaml"
+    path.write_text("stereo:\n  uniqueness_ratio_percent: 12\npairing:\n  min_angle_rad: 0.08\n")
+    loaded = load_yaml_file(RecordingProcessing, path)
+    assert loaded.stereo.uniqueness_ratio_percent == 12 and loaded.stereo.block_size_px == 5
+    assert loaded.pairing.min_angle_rad == 0.08 and loaded.pairing.pairs_per_view == 2
+    assert loaded.two_view.downscale == defaults.two_view.downscale
+    # The calibration's board is a 10 x 7 chessboard; a file giving its squares' size keeps it.
+    board = tmp_path / "calibrate.yaml"
+    board.write_text("board:\n  spacing_m: 0.03\n")
+    spec = load_calibrate_config(board).board
+    assert (spec.kind, spec.cols, spec.rows, spec.spacing_m) == ("chessboard", 10, 7, 0.03)

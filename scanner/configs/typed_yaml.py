@@ -27,7 +27,9 @@ def _key(keys: str, name: str) -> str:
     return f"{keys}.{name}" if keys else name
 
 
-def _convert(tp, value, where: str, keys: str):
+def _convert(tp, value, where: str, keys: str, default=None):
+    """`value` as type `tp`; `default`: the value the enclosing record has there when the file
+    does not say (a nested record's keys the file leaves out keep it)."""
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         args = typing.get_args(tp)
@@ -35,7 +37,7 @@ def _convert(tp, value, where: str, keys: str):
             return None
         inner = [a for a in args if a is not type(None)]
         if len(inner) == 1:
-            return _convert(inner[0], value, where, keys)
+            return _convert(inner[0], value, where, keys, default)
         # A choice of types (e.g. a count or a word): the first that takes the value; the
         # record's own check then says what is allowed.
         for tp_k in inner:
@@ -46,7 +48,7 @@ def _convert(tp, value, where: str, keys: str):
         names = " or ".join(getattr(t, "__name__", str(t)) for t in inner)
         raise ScannerError(f"{_at(where, keys)}: expected {names}, got {value!r}")
     if dataclasses.is_dataclass(tp):
-        return _from_dict(tp, value, where, keys)
+        return _from_dict(tp, value, where, keys, default if isinstance(default, tp) else None)
     at = _at(where, keys)
     if origin is tuple:
         args = typing.get_args(tp)
@@ -82,7 +84,8 @@ def _convert(tp, value, where: str, keys: str):
 
 
 def from_dict(cls, data, where: str):
-    """Build dataclass `cls` from a mapping; missing keys take the defaults. Errors read
+    """Build dataclass `cls` from a mapping; missing keys take the defaults (in a nested
+    section, the enclosing record's default of that section, not its class's). Errors read
     `where: key.path: what was expected` (`where` is usually the file)."""
     return _from_dict(cls, data, where, "")
 
@@ -119,7 +122,18 @@ def _unknown_keys(unknown: list[str], names: set[str]) -> str:
     return f"unknown key(s) {', '.join(unknown)}{hint}; valid keys: {', '.join(valid)}"
 
 
-def _from_dict(cls, data, where: str, keys: str):
+def _field_default(base, field: dataclasses.Field):
+    """What a record has in `field` when the file leaves it out: `base`'s value, else the
+    field's own default (which may differ from its class's defaults: a recording's stereo
+    matcher has a 5 px block, the class 3 px)."""
+    if base is not None:
+        return getattr(base, field.name)
+    if field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    return None if field.default is dataclasses.MISSING else field.default
+
+
+def _from_dict(cls, data, where: str, keys: str, base=None):
     if not isinstance(data, dict):
         raise ScannerError(f"{_at(where, keys)}: expected a mapping, got {data!r}")
     hints = typing.get_type_hints(cls)
@@ -127,9 +141,14 @@ def _from_dict(cls, data, where: str, keys: str):
     unknown = sorted(str(k) for k in set(data) - names)
     if unknown:
         raise ScannerError(f"{_at(where, keys)}: {_unknown_keys(unknown, names)}")
-    kwargs = {k: _convert(hints[k], v, where, _key(keys, k)) for k, v in data.items()}
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    kwargs = {}
+    for k, v in data.items():
+        default = _field_default(base, fields[k])
+        nested = default if dataclasses.is_dataclass(default) else None
+        kwargs[k] = _convert(hints[k], v, where, _key(keys, k), nested)
     try:
-        return cls(**kwargs)
+        return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)
     except ScannerError as e:
         raise type(e)(f"{where}: {_with_key_paths(str(e), keys, names)}") from None
 
