@@ -4,11 +4,10 @@ and stop, the scan's log file, and the optional Meshcat viewer."""
 from __future__ import annotations
 
 import logging
+import os
 import signal
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
-
-log = logging.getLogger("scanner.scan.run")
 
 
 def interruptible(machine):
@@ -17,8 +16,16 @@ def interruptible(machine):
     @contextmanager
     def guard():
         def handler(signum, frame):
-            log.warning("signal %d: finishing the current capture, then stopping", signum)
+            # Only what is safe wherever the signal lands: the flag, and one unbuffered write
+            # to the terminal. A log call here re-entered the log record being written when the
+            # signal came ("--- Logging error ---" on stderr, now and then); the machine logs
+            # the abort at its next state boundary.
             machine.request_abort()
+            notice = (
+                f"scanner: WARNING: signal {signum}: finishing the current capture, then stopping\n"
+            )
+            with suppress(OSError):  # no terminal: the scan log still says it stopped
+                os.write(2, notice.encode())
 
         previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
