@@ -68,6 +68,18 @@ def _isolated_cache(tmp_path_factory):
     os.environ.setdefault("SCANNER_CACHE", str(tmp_path_factory.mktemp("cache")))
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _board_detections_remembered():
+    """Each rendered board image is detected once per worker (tests/detection_memo.py)."""
+    import scanner.calibrate.offline as offline
+    from tests.detection_memo import remembered
+
+    detect = offline.detect_board_or_reason
+    offline.detect_board_or_reason = remembered(detect)
+    yield
+    offline.detect_board_or_reason = detect
+
+
 @pytest.fixture(scope="session")
 def vase_sim():
     from robots.models.workcell import WorkcellConfig

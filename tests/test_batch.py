@@ -13,9 +13,10 @@ import yaml
 from reconstruction.common.errors import ScannerError
 from scanner.commands.main import main
 from scanner.configs.scan import load_scan_config
-from scanner.reconstruct.batch import check_ray_address, run_batch
+from scanner.reconstruct.batch import check_ray_address
 from scanner.reconstruct.command import ReconstructOptions, reconstruct_one
 from scanner.scan.run import run_scan
+from tests.in_process import scanner_in_fixture
 from tests.tiny_scan import TINY_PROCESSING, TINY_SCAN
 
 TINY = {**TINY_SCAN, "reconstruct": False}
@@ -61,18 +62,47 @@ def _mesh(path: Path):
     return np.asarray(m.vertices), np.asarray(m.triangles)
 
 
+def _reconstructed_or_dies(scan_dir: Path, options):
+    """What the batch command runs per scan, except that a worker given a scan named "dies"
+    exits at once, as one killed or out of memory would."""
+    from scanner.commands.reconstruct import reconstruct_saved
+
+    if scan_dir.name == "dies":
+        os._exit(3)
+    return reconstruct_saved(scan_dir, options)
+
+
+@pytest.fixture(scope="module")
+def batch(two_scans, pose_only_file, tmp_path_factory):
+    """`scanner reconstruct` of the two scans, a missing folder and a scan whose worker dies,
+    on two workers: one local Ray for the checks of both tests below (starting Ray and its
+    workers costs as much as the two reconstructions)."""
+    import sys
+
+    from ray import cloudpickle
+
+    import scanner.commands.reconstruct as command
+
+    missing = tmp_path_factory.mktemp("batch-gone") / "gone"
+    dies = tmp_path_factory.mktemp("batch-dies") / "dies"
+    # Ray's workers cannot import this test module: send the task function by value.
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(command, "reconstruct_saved", _reconstructed_or_dies)
+        dirs = [*two_scans, missing, dies]
+        run = scanner_in_fixture("reconstruct", *dirs, "--workers", 2, "--config", pose_only_file)
+    return SimpleNamespace(run=run, missing=missing, dies=dies)
+
+
 def test_a_batch_equals_one_by_one_and_reports_each_scan(
-    two_scans, pose_only_file, tmp_path, capsys
+    batch, two_scans, pose_only_file, tmp_path
 ):
-    missing = tmp_path / "gone"
-    dirs = [*map(str, two_scans), str(missing)]
-    rc = main(["reconstruct", *dirs, "--workers", "2", "--config", str(pose_only_file)])
-    out = capsys.readouterr().out
-    assert rc == 1  # one scan failed
+    out, missing = batch.run.stdout, batch.missing
+    assert batch.run.returncode == 1  # a scan failed
     assert f"{missing}: FAILED: {missing}: not a scan directory (no scan.yaml)" in out
     for scan_dir in two_scans:
         assert f"{scan_dir}: ok, results {scan_dir / 'results'}" in out
-    assert "batch: 2 of 3 scans reconstructed" in out
+    assert "batch: 2 of 4 scans reconstructed" in out
     for scan_dir in two_scans:
         options = ReconstructOptions(config=pose_only_file, out=tmp_path / scan_dir.name)
         alone = reconstruct_one(scan_dir, options)
@@ -87,33 +117,14 @@ def test_a_batch_equals_one_by_one_and_reports_each_scan(
         )
 
 
-def _dies_on_the_second(scan_dir: Path, options):
-    if scan_dir.name == "scan1":
-        os._exit(3)
-    # What the survivor runs is not what is tested here (a batch's reconstructions: above).
-    return SimpleNamespace(report={"survived": scan_dir.name}, results_dir=scan_dir)
-
-
-def test_a_worker_that_dies_is_reported_and_the_others_finish(two_scans, pose_only_file, tmp_path):
-    import sys
-
-    from ray import cloudpickle
-
-    # Ray's workers cannot import this test module: send the task function by value.
-    cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    heard = []
-    outcomes = run_batch(
-        two_scans,
-        _dies_on_the_second,
-        ReconstructOptions(config=pose_only_file),
-        workers=2,
-        ray_address=None,
-        on_done=heard.append,
-    )
-    assert [o.ok for o in outcomes] == [True, False], outcomes
-    assert outcomes[0].report == {"survived": "scan0"}
-    assert "worker process died" in outcomes[1].error
-    assert len(heard) == 2
+def test_a_worker_that_dies_is_reported_and_the_others_finish(batch, two_scans):
+    lines = batch.run.stdout.splitlines()
+    died = [line for line in lines if line.startswith(f"{batch.dies}: ")]
+    assert died == [f"{batch.dies}: FAILED: the worker process died (killed or out of memory)"]
+    # The others finished, each heard once, whenever the worker died.
+    for scan_dir in two_scans:
+        assert len([line for line in lines if line.startswith(f"{scan_dir}: ok, ")]) == 1
+    assert len([line for line in lines if ": FAILED: " in line or ": ok, " in line]) == 4
 
 
 def test_a_ray_address_that_does_not_answer_is_a_clear_error():

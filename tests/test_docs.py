@@ -17,6 +17,7 @@ import pytest
 import yaml
 
 from scanner.commands.main import build_parser, main
+from tests.in_process import scanner
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -182,14 +183,17 @@ def test_guide_version_runs():
     assert r.stdout.startswith("scanner "), r.stdout
 
 
-def test_guide_print_config_commands_run():
-    # The concrete ones (synopses with [optional] parts and a|b choices are not run).
+def test_guide_print_config_commands_run(capfd, monkeypatch):
+    # The concrete ones (synopses with [optional] parts and a|b choices are not run), through
+    # `main` in this process (`test_guide_version_runs` starts the command itself), from the
+    # repository's folder as the guide's paths are.
     commands = [
         c for c in _guide_commands() if "--print-config" in c and not re.search(r"[][|]", c)
     ]
     assert "scanner scan --print-config" in commands
+    monkeypatch.chdir(ROOT)
     for command in commands:
-        r = _run(command)
+        r = scanner(capfd, *command.split()[1:])
         assert r.returncode == 0, f"{command}: {r.stderr}"
         config = yaml.safe_load(r.stdout)
         assert {"object", "views", "processing", "monitor"} <= set(config), command

@@ -28,6 +28,7 @@ from robots.models.objects import resolve_object
 from robots.models.workcell import placed_object
 from robots.simulation.operator import hanging_rotation, hung_pose
 from tests.conftest import shared_data
+from tests.in_process import scanner_in_fixture
 from tests.partial_clouds import other_stripes, partial_cloud, stripes
 from tests.tiny_scan import TINY_SCAN
 
@@ -265,12 +266,8 @@ def two_hangings(tmp_path_factory):
         "captures": _captures(out),
         "manifest": yaml.safe_load((out / "scan.yaml").read_text()),
     }
-    r = subprocess.run(
-        [sys.executable, "-m", "scanner", "scan", "--resume", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
+    # The resume in this process: what is checked is the resume, not a process (the kill is).
+    r = scanner_in_fixture("scan", "--resume", out)
     assert r.returncode == 0, r.stderr
     report = json.loads((out / "results" / "report.json").read_text())
     return SimpleNamespace(scan_dir=out, report=report, killed=killed)
