@@ -50,6 +50,8 @@ LONGEST_FIRST = (
     "test_reconstruction_handeye.py",  # 20
     "test_recording_reconstruction.py",  # 20
     "test_turntable_scan.py",  # 24
+    "test_table.py",  # 27
+    "test_arm_scan.py",  # 30
     "test_presentation.py",  # 20
     "test_sensor_plugins.py",  # 14
 )
