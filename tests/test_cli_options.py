@@ -229,6 +229,7 @@ CASES = [
     (["reconstruct", "{root}/scan"], "--masks", _names(["all", "even", "none"])),
     (["reconstruct", "{root}/scan"], "--masks", st.just("even")),  # a scan, not a recording
     (["reconstruct", "{root}/scan"], "--volume", _floats(None)),
+    (["reconstruct", "{root}/scan"], "--box", _floats(None)),
     (["reconstruct", "{root}/scan"], "--units", _names(["m", "mm"])),
     (["reconstruct", "{root}/scan"], "--frame", _names(["world", "object"])),
     (["reconstruct", "{root}/scan"], "--decimate", _ints(4, 10**8)),

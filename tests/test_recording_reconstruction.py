@@ -319,12 +319,12 @@ def test_flange_poses_with_a_rough_X_FC_get_the_hand_eye_correction(blobs, tmp_p
 
 
 def test_a_box_given_as_the_volume_keeps_only_what_lies_in_it(blobs, tmp_path, capfd):
-    """--volume with six numbers is a box: the fused points all lie in it, and the box cuts
+    """--box: the fused points all lie in it, and the box cuts
     the blob that sticks out on +x; the report and summary say it was a given box."""
     box = (-0.06, -0.08, -0.07, 0.03, 0.08, 0.07)
     out = tmp_path / "results"
     argv = ["reconstruct", str(blobs.scan), "--out", str(out), "--no-icp", "--no-handeye"]
-    assert main([*argv, "--volume", *map(str, box)]) == 0
+    assert main([*argv, "--box", *map(str, box)]) == 0
     r = json.loads((out / "report.json").read_text())
     assert r["working_volume"]["source"] == "given box"
     np.testing.assert_allclose(r["working_volume"]["half_extent_m"], [0.045, 0.08, 0.07])
@@ -338,13 +338,19 @@ def test_a_box_given_as_the_volume_keeps_only_what_lies_in_it(blobs, tmp_path, c
     assert fused[:, 0].max() > 0.025
 
 
-def test_a_volume_of_another_count_of_numbers_is_refused(blobs, tmp_path, capfd):
+def test_a_bad_box_or_a_box_and_a_sphere_are_refused(blobs, tmp_path, capfd):
     out = tmp_path / "results"
-    r = scanner(capfd, "reconstruct", blobs.scan, "--out", out, "--volume", "0", "0", "0")
-    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
-    assert "--volume: expected 4 numbers (a sphere: X Y Z R) or 6 (a box" in r.stderr
+    r = scanner(capfd, "reconstruct", blobs.scan, "--out", out, "--box", "0", "0", "0")
+    assert r.returncode == 2 and "--box: expected 6 arguments" in r.stderr
     r = scanner(
-        capfd, "reconstruct", blobs.scan, "--out", out, "--volume", "0", "0", "0", "0", "1", "1"
+        capfd, "reconstruct", blobs.scan, "--out", out, "--box", "0", "0", "0", "0", "1", "1"
     )
-    assert r.returncode == 2 and "each maximum must exceed its minimum" in r.stderr
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+    assert "--box: each maximum must exceed its minimum" in r.stderr
+    both = ["--box", "0", "0", "0", "1", "1", "1", "--volume", "0", "0", "0", "1"]
+    r = scanner(capfd, "reconstruct", blobs.scan, "--out", out, *both)
+    assert r.returncode == 2 and "--box, --volume: give the sphere or the box, not both" in r.stderr
+    # The scan directory may follow the options (the box takes exactly six numbers).
+    r = scanner(capfd, "reconstruct", "--box", "0", "0", "0", "0", "1", "1", blobs.scan)
+    assert r.returncode == 2 and "--box: each maximum must exceed its minimum" in r.stderr
     assert not out.exists()

@@ -88,11 +88,19 @@ def add_reconstruct_parser(sub) -> None:
     reconstruct.add_argument(
         "--volume",
         type=finite_float,
-        nargs="+",
-        metavar="V",
-        help="imported recordings: where the object lies, in metres in the recording's world: "
-        "a sphere X Y Z R (centre, radius) or a box XMIN YMIN ZMIN XMAX YMAX ZMAX (default: "
-        "from the masks, else the cameras' common view)",
+        nargs=4,
+        metavar=("X", "Y", "Z", "R"),
+        help="imported recordings: the sphere the object lies in (centre and radius, metres, in "
+        "the recording's world) (default: from the masks, else the cameras' common view)",
+    )
+    reconstruct.add_argument(
+        "--box",
+        type=finite_float,
+        nargs=6,
+        metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+        help="imported recordings: instead of --volume, the box the object lies in (its lower "
+        "and upper corners, metres, axis-aligned in the recording's world): only what lies in "
+        "it is kept",
     )
     add_config_option(
         reconstruct,
@@ -194,6 +202,7 @@ def run_reconstruct_command(args: argparse.Namespace) -> int:
         decimate=args.decimate,
         masks=args.masks,
         volume=None if args.volume is None else tuple(args.volume),
+        box=None if args.box is None else tuple(args.box),
     )
     if len(dirs) > 1 or args.ray_address is not None or args.workers is not None:
         return _reconstruct_batch(dirs, options, args)

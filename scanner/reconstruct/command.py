@@ -26,9 +26,10 @@ class ReconstructOptions:
     frame: str | None = None
     decimate: int | None = None
     # Imported recordings only: whose masks restrict the clouds (all, even, none), and the
-    # working volume (x, y, z, radius in metres).
+    # working volume (x, y, z, radius in metres) or box (x, y, z min, then max, metres).
     masks: str | None = None
     volume: tuple[float, float, float, float] | None = None
+    box: tuple[float, float, float, float, float, float] | None = None
 
 
 def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructRun:
@@ -49,8 +50,9 @@ def reconstruct_one(scan_dir: Path, options: ReconstructOptions) -> ReconstructR
     # An imported recording (one camera, its pose per view) has its own reconstruction
     # (scanner.recordings), which the command chooses.
     require_robot_scan(scan, "this reconstruction")
-    if options.masks is not None or options.volume is not None:
-        flag = "--masks" if options.masks is not None else "--volume"
+    given = {"--masks": options.masks, "--volume": options.volume, "--box": options.box}
+    flag = next((f for f, v in given.items() if v is not None), None)
+    if flag is not None:
         raise ScannerError(f"{flag}: only for an imported recording; {scan_dir} is a scan")
     if options.config is not None:
         processing = load_processing_config(options.config)

@@ -216,19 +216,27 @@ def reconstruct_recording(
     return RecordingRun(result, report, Path(out))
 
 
-def _with_volume(settings: RecordingProcessing, numbers) -> RecordingProcessing:
-    """--volume X Y Z R (a sphere) or XMIN YMIN ZMIN XMAX YMAX ZMAX (a box)."""
-    numbers = tuple(float(v) for v in numbers)
-    if len(numbers) == 4:
-        return replace(
-            settings, volume_centre_m=numbers[:3], volume_radius_m=numbers[3], volume_box_m=None
+def _with_volume(settings: RecordingProcessing, options) -> RecordingProcessing:
+    """--volume X Y Z R (a sphere) or --box XMIN YMIN ZMIN XMAX YMAX ZMAX, not both."""
+    from scanner.configs.flags import for_flag
+
+    if options.volume is not None and options.box is not None:
+        raise ScannerError("--box, --volume: give the sphere or the box, not both")
+    if options.volume is not None:
+        x, y, z, r = map(float, options.volume)
+        return for_flag(
+            "--volume",
+            lambda: replace(
+                settings, volume_centre_m=(x, y, z), volume_radius_m=r, volume_box_m=None
+            ),
         )
-    if len(numbers) == 6:
-        return replace(settings, volume_box_m=numbers, volume_centre_m=None, volume_radius_m=None)
-    raise ScannerError(
-        f"expected 4 numbers (a sphere: X Y Z R) or 6 (a box: XMIN YMIN ZMIN XMAX YMAX ZMAX), "
-        f"got {len(numbers)}"
-    )
+    if options.box is not None:
+        box = tuple(map(float, options.box))
+        return for_flag(
+            "--box",
+            lambda: replace(settings, volume_box_m=box, volume_centre_m=None, volume_radius_m=None),
+        )
+    return settings
 
 
 def reconstruct_recording_with(scan: SavedScan, options) -> RecordingRun:
@@ -264,8 +272,7 @@ def reconstruct_recording_with(scan: SavedScan, options) -> RecordingRun:
         settings = for_flag("--formats", lambda: replace(settings, mesh_formats=formats))
     if options.masks is not None:
         settings = replace(settings, masks=options.masks)
-    if options.volume is not None:
-        settings = for_flag("--volume", lambda: _with_volume(settings, options.volume))
+    settings = _with_volume(settings, options)
     out = options.out or free_reconstruction_dir(scan.root)
     if options.out is not None:
         require_replaceable(options.out, RECONSTRUCTION_MARKER, options.force, "reconstruction")
