@@ -100,7 +100,7 @@ def add_reconstruct_parser(sub) -> None:
         metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
         help="imported recordings: instead of --volume, the box the object lies in (its lower "
         "and upper corners, metres, axis-aligned in the recording's world): only what lies in "
-        "it is kept",
+        "it is kept (default: none; the volume as --volume says)",
     )
     add_config_option(
         reconstruct,
