@@ -158,6 +158,40 @@ def test_recording_options_are_refused_where_they_do_not_apply(
     assert not out.exists()
 
 
+# Spheres of different sizes, off each other's centres: a shape with no symmetry, which holds a
+# registration (one sphere turns on itself) and so the hand-eye correction. Centres and radii, m.
+BLOBS = np.array(
+    [
+        [0.0, 0.0, 0.0, 0.05],
+        [0.045, 0.025, 0.02, 0.03],
+        [-0.03, 0.045, -0.025, 0.028],
+        [0.0, -0.045, 0.035, 0.022],
+        [-0.04, -0.02, -0.03, 0.02],
+    ]
+)
+
+
+def depth_of_spheres(
+    X_WC: np.ndarray, K: np.ndarray, size: tuple[int, int], spheres: np.ndarray = BLOBS
+) -> np.ndarray:
+    """Depth along the optical axis (m, 0 where no sphere is hit) of the nearest of `spheres`
+    (rows: centre x, y, z and radius, metres)."""
+    w, h = size
+    v, u = np.mgrid[0:h, 0:w]
+    rays_C = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones((h, w))], -1)
+    rays_W = rays_C @ X_WC[:3, :3].T
+    a2 = np.einsum("ijk,ijk->ij", rays_W, rays_W)
+    z = np.full((h, w), np.inf)
+    for cx, cy, cz, r in spheres:
+        # |o + t d|^2 = r^2 along each ray d (not unit: t is the depth z).
+        o = X_WC[:3, 3] - (cx, cy, cz)
+        b = 2 * rays_W @ o
+        disc = b**2 - 4 * a2 * (o @ o - r**2)
+        t = (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a2)
+        z = np.where((disc > 0) & (t > 0) & (t < z), t, z)
+    return np.where(np.isfinite(z), z, 0.0)
+
+
 def test_views_with_depth_images_go_through_the_depth_path(tmp_path, capfd):
     """A plain recording whose views carry 16-bit depth images of a known sphere (flange poses
     and X_FC, depth in 0.1 mm units): no pairs, every view its own depth cloud, and the model on
@@ -177,15 +211,7 @@ def test_views_with_depth_images_go_through_the_depth_path(tmp_path, capfd):
     views = []
     for i, a in enumerate(np.linspace(0, 2 * np.pi, 6, endpoint=False)):
         X_WC = look_at((0.5 * np.cos(a), 0.5 * np.sin(a), 0.2))
-        v, u = np.mgrid[0:h, 0:w]
-        rays_C = np.stack([(u - K[0, 2]) / f, (v - K[1, 2]) / f, np.ones((h, w))], -1)
-        rays_W = rays_C @ X_WC[:3, :3].T
-        o = X_WC[:3, 3] - centre
-        # |o + t r|^2 = radius^2 along each ray r (not unit: t is the depth z).
-        a2 = np.einsum("ijk,ijk->ij", rays_W, rays_W)
-        b = 2 * rays_W @ o
-        disc = b**2 - 4 * a2 * (o @ o - radius**2)
-        z = np.where(disc > 0, (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a2), 0)
+        z = depth_of_spheres(X_WC, K, (w, h), np.array([[*centre, radius]]))
         cv2.imwrite(str(folder / f"d{i}.png"), np.round(z / 1e-4).astype(np.uint16))
         cv2.imwrite(str(folder / f"i{i}.png"), rng.integers(0, 255, (h, w, 3), np.uint8))
         X_WF = X_WC @ invert(X_FC)
@@ -208,37 +234,6 @@ def test_views_with_depth_images_go_through_the_depth_path(tmp_path, capfd):
     signed = np.linalg.norm(fused - centre, axis=1) - radius
     assert len(fused) > 500
     assert -0.25e-3 < np.median(signed) < 0 and np.percentile(np.abs(signed), 95) < 0.5e-3
-
-
-# Spheres of different sizes, off each other's centres: a shape with no symmetry, which holds a
-# registration (one sphere turns on itself) and so the hand-eye correction. Centres and radii, m.
-BLOBS = np.array(
-    [
-        [0.0, 0.0, 0.0, 0.05],
-        [0.045, 0.025, 0.02, 0.03],
-        [-0.03, 0.045, -0.025, 0.028],
-        [0.0, -0.045, 0.035, 0.022],
-        [-0.04, -0.02, -0.03, 0.02],
-    ]
-)
-
-
-def _depth_of_blobs(X_WC: np.ndarray, K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Depth along the optical axis (m, 0 where no sphere is hit) of the nearest sphere."""
-    w, h = size
-    v, u = np.mgrid[0:h, 0:w]
-    rays_C = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones((h, w))], -1)
-    rays_W = rays_C @ X_WC[:3, :3].T
-    a2 = np.einsum("ijk,ijk->ij", rays_W, rays_W)
-    z = np.full((h, w), np.inf)
-    for cx, cy, cz, r in BLOBS:
-        # |o + t d|^2 = r^2 along each ray d (not unit: t is the depth z).
-        o = X_WC[:3, 3] - (cx, cy, cz)
-        b = 2 * rays_W @ o
-        disc = b**2 - 4 * a2 * (o @ o - r**2)
-        t = (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a2)
-        z = np.where((disc > 0) & (t > 0) & (t < z), t, z)
-    return np.where(np.isfinite(z), z, 0.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -277,7 +272,7 @@ def blobs(tmp_path_factory) -> BlobsRecording:
         # Rolled about the optical axis by a different angle each: the flange turns about
         # more than one axis between views, which the hand-eye problem needs.
         X_WC = X_WC @ make_pose(cv2.Rodrigues(np.array([0.0, 0.0, 0.13 * i - 1.5]))[0], (0, 0, 0))
-        z = _depth_of_blobs(X_WC, K, (w, h))
+        z = depth_of_spheres(X_WC, K, (w, h))
         cv2.imwrite(str(folder / f"d{i}.png"), np.round(z / 1e-4).astype(np.uint16))
         cv2.imwrite(str(folder / f"i{i}.png"), rng.integers(0, 255, (h, w, 3), np.uint8))
         X_WF = X_WC @ invert(X_FC_true)
