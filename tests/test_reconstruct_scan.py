@@ -18,7 +18,6 @@ import open3d as o3d
 import pytest
 import yaml
 from report_units import keys_breaking_the_unit_rule
-from scipy.spatial import cKDTree
 
 from reconstruction.common.transforms import pose_difference
 from reconstruction.evaluation.metrics import (
