@@ -18,6 +18,7 @@ import open3d as o3d
 import pytest
 import yaml
 from report_units import keys_breaking_the_unit_rule
+from scipy.spatial import cKDTree
 
 from reconstruction.common.transforms import pose_difference
 from reconstruction.evaluation.metrics import (
@@ -145,6 +146,8 @@ def test_a_second_reconstruction_of_the_same_captures_is_identical(tiny_scan, tm
     b = o3d.io.read_triangle_mesh(str(scan_dir / "results" / "mesh_tsdf.ply"))
     assert abs(len(a.triangles) - len(b.triangles)) <= 1e-4 * len(b.triangles) + 2
     assert a.get_surface_area() == pytest.approx(b.get_surface_area(), abs=3e-5)
+    va, vb = np.asarray(a.vertices), np.asarray(b.vertices)
+    assert cKDTree(va).query(vb)[0].max() < 1e-7 and cKDTree(vb).query(va)[0].max() < 1e-7
     a = o3d.io.read_point_cloud(str(again.results_dir / "fused_cloud.ply"))
     b = o3d.io.read_point_cloud(str(scan_dir / "results" / "fused_cloud.ply"))
     np.testing.assert_array_equal(np.asarray(a.points), np.asarray(b.points))
