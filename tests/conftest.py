@@ -29,31 +29,32 @@ def shared_data(relative: str) -> Path:
 # the end-to-end files, which have few tests, to the end, where one core ran them while the other
 # had nothing left. Longest first, the two finish together. A file missing here runs after these.
 LONGEST_FIRST = (
-    "test_hangings.py",  # 87 s
-    "test_failed_hanging.py",  # 76
-    "test_reconstruction_pipeline.py",  # 70
-    "test_reconstruct_scan.py",  # 62
-    "test_auto_hangings.py",  # 59
-    "test_faults.py",  # 57
-    "test_calibration_sim.py",  # 46
-    "test_batch.py",  # 43
-    "test_scan.py",  # 34
-    "test_reconstruct_bad_inputs.py",  # 31
-    "test_emulated_cell.py",  # 30
-    "test_view_stream.py",  # 28
-    "test_fixture_removal.py",  # 23
-    "test_rgbd_scan.py",  # 23
-    "test_calibration_offline.py",  # 22
-    "test_inspect.py",  # 22
-    "test_checked_before_work.py",  # 22
-    "test_cell_monitor.py",  # 21
-    "test_reconstruction_handeye.py",  # 20
-    "test_recording_reconstruction.py",  # 20
-    "test_turntable_scan.py",  # 24
-    "test_table.py",  # 27
+    "test_hangings.py",  # 79 s
+    "test_failed_hanging.py",  # 74
+    "test_reconstruction_pipeline.py",  # 66
+    "test_recording_reconstruction.py",  # 60
+    "test_calibration_sim.py",  # 60
+    "test_auto_hangings.py",  # 55
+    "test_faults.py",  # 49
+    "test_reconstruct_scan.py",  # 44
+    "test_batch.py",  # 35
+    "test_rgbd_scan.py",  # 31
     "test_arm_scan.py",  # 30
-    "test_presentation.py",  # 20
-    "test_sensor_plugins.py",  # 14
+    "test_emulated_cell.py",  # 28
+    "test_view_stream.py",  # 26
+    "test_fixture_removal.py",  # 26
+    "test_table.py",  # 24
+    "test_inspect.py",  # 22
+    "test_scan.py",  # 21
+    "test_turntable_scan.py",  # 20
+    "test_monitor_detector.py",  # 18
+    "test_hanging_symmetry.py",  # 17
+    "test_mesh_export.py",  # 17
+    "test_cell_monitor.py",  # 17
+    "test_calibration_offline.py",  # 16
+    "test_reconstruction_handeye.py",  # 15
+    "test_checked_before_work.py",  # 15
+    "test_reconstruction_surfaces.py",  # 14
 )
 
 
