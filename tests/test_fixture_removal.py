@@ -1,12 +1,11 @@
 """The fixture never enters the model: the model-side guard on synthetic clouds (flat, elongated,
-hung off the centre vertical, a second hanging's rod), and a simulated two-hanging scan of a flat
-ellipsoid (the shape that left a strip of rod in its mesh) checked against the true rod lines."""
+hung off the centre vertical, a second hanging's rod). End to end: a simulated two-hanging scan
+checked against the true rod lines (test_hangings.py); over the benchmark objects, a flat one
+among them, scripts/bench_complete.py (`fixture_points_max`)."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,15 +13,14 @@ import pytest
 from reconstruction.common.transforms import invert, make_pose, rotation_about, transform_points
 from reconstruction.hangings.merge import in_own_frames
 from reconstruction.surfaces.fixture import (
-    FixtureLine,
     fixture_points,
     points_on_fixture,
     without_fixture,
 )
+from tests.rods import CENTRE, ROD_RADIUS_M
+from tests.rods import rod_line as _line
 
 RNG = np.random.default_rng(4)
-CENTRE = np.array([0.4, 0.0, 1.0])
-ROD_RADIUS_M = 0.004
 
 
 def _ellipsoid(semi_axes, n: int = 60_000, centre=CENTRE) -> np.ndarray:
@@ -36,10 +34,6 @@ def _rod(x: float, y: float, z0: float, z1: float, n: int = 3000, noise_m=0.002)
     phi = RNG.uniform(0, 2 * math.pi, n)
     r = ROD_RADIUS_M + RNG.normal(0, noise_m, n)
     return np.column_stack([x + r * np.cos(phi), y + r * np.sin(phi), RNG.uniform(z0, z1, n)])
-
-
-def _line(p=CENTRE, u=(0.0, 0.0, 1.0)) -> FixtureLine:
-    return FixtureLine(tuple(map(float, p)), tuple(map(float, u)), ROD_RADIUS_M)
 
 
 @pytest.mark.parametrize(
@@ -110,62 +104,8 @@ def test_the_cell_filter_sees_each_view_in_its_own_hangings_frame():
     np.testing.assert_allclose(seen[3], p_own, atol=1e-12)
 
 
-def rod_points(points_W: np.ndarray, truth_vertices_W: np.ndarray, X_WO_hangings) -> int:
-    """Points within 10 mm of a hanging's true rod axis and above the object there, in the
-    first hanging's frame (where `points_W` and the true surface are)."""
-    X0 = np.asarray(X_WO_hangings[0])
-    count = 0
-    for X in X_WO_hangings:
-        T = X0 @ invert(np.asarray(X))  # that hanging's frame -> the first's
-        count += points_on_fixture(points_W, truth_vertices_W, _line().moved(T))
-    return count
-
-
 def test_points_on_the_fixture_are_counted_above_the_object_only():
     body = _ellipsoid((0.1, 0.05, 0.025))
     rod = _rod(CENTRE[0], CENTRE[1], CENTRE[2] + 0.025, CENTRE[2] + 0.2, noise_m=0.0)
     assert points_on_fixture(body, body, _line()) == 0
     assert points_on_fixture(rod, body, _line()) == int((rod[:, 2] > CENTRE[2] + 0.035).sum())
-
-
-def test_a_flat_ellipsoid_scanned_in_two_hangings_has_no_rod_in_its_model(tmp_path: Path):
-    import open3d as o3d
-    import yaml
-
-    from scanner.configs.scan import scan_config_from_dict, with_overrides
-    from scanner.scan.run import run_scan
-    from tests.tiny_scan import HALF_RESOLUTION, TINY_PROCESSING, TINY_SCAN
-
-    sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, resolution=40)
-    sphere.vertices = o3d.utility.Vector3dVector(np.asarray(sphere.vertices) * [0.1, 0.05, 0.025])
-    o3d.io.write_triangle_mesh(str(tmp_path / "flat.obj"), sphere)
-    # The tiny scan's roadmap, view candidates and coarse Poisson surface (with the closed one
-    # of the two hangings: each is checked for rods). At 320x240 the hand-eye fit finds no
-    # overlapping views and the second hanging fails its 1 mm inlier RMS: 640x480 stays.
-    surfaces = {**TINY_PROCESSING["reconstruction"]["surfaces"], "methods": ["poisson"]}
-    processing = {**TINY_PROCESSING, "reconstruction": {"surfaces": surfaces}}
-    tiny = {k: TINY_SCAN[k] for k in ("planner", "views")} | {"processing": processing}
-    config = with_overrides(
-        scan_config_from_dict(tiny, "tiny"),
-        object_spec=str(tmp_path / "flat.obj"),
-        views=10,
-        seed=5,
-        hangings=2,
-    )
-    config = replace(config, camera=HALF_RESOLUTION)
-    result = run_scan(config, tmp_path / "scan")
-    scan = result.scan_dir
-    assert result.report["hangings"][1]["verified"]  # both hangings, each with its rod, merged
-    # The report's own count (against the truth) agrees.
-    assert result.report["fixture_points"] == 0
-    truth = yaml.safe_load((scan / "truth.yaml").read_text())
-    results = scan / "results"
-    true_vertices = np.asarray(o3d.io.read_triangle_mesh(str(scan / "truth_mesh.ply")).vertices)
-    fused = np.asarray(o3d.io.read_point_cloud(str(results / "fused_cloud.ply")).points)
-    assert rod_points(fused, true_vertices, truth["X_WO_hangings"]) == 0
-    meshes = sorted(results.glob("mesh_*.ply"))
-    assert len(meshes) >= 2
-    for mesh in meshes:
-        vertices = np.asarray(o3d.io.read_triangle_mesh(str(mesh)).vertices)
-        assert len(vertices) > 1000, mesh.name
-        assert rod_points(vertices, true_vertices, truth["X_WO_hangings"]) == 0, mesh.name

@@ -312,6 +312,31 @@ def test_a_two_hanging_scan_is_aligned_and_sees_the_whole_object(two_hangings):
 
 
 @pytest.mark.slow
+def test_no_rod_of_either_hanging_is_in_the_model(two_hangings):
+    """Each hanging's rod, removed in that hanging's own frame, is in none of the merged
+    model's points: the fused cloud and every mesh, checked against the true rod lines (the
+    guard on flat and elongated shapes: test_fixture_removal.py; over the benchmark objects:
+    bench_complete's fixture_points_max)."""
+    import open3d as o3d
+
+    from tests.rods import rod_points
+
+    scan = two_hangings.scan_dir
+    results = scan / "results"
+    assert two_hangings.report["fixture_points"] == 0  # the report's own count agrees
+    hung = yaml.safe_load((scan / "truth.yaml").read_text())["X_WO_hangings"]
+    true_vertices = np.asarray(o3d.io.read_triangle_mesh(str(scan / "truth_mesh.ply")).vertices)
+    fused = np.asarray(o3d.io.read_point_cloud(str(results / "fused_cloud.ply")).points)
+    assert len(fused) > 10_000 and rod_points(fused, true_vertices, hung) == 0
+    meshes = sorted(results.glob("mesh_*.ply"))
+    assert {m.name for m in meshes} >= {"mesh_poisson.ply", "mesh_poisson_closed.ply"}
+    for mesh in meshes:
+        vertices = np.asarray(o3d.io.read_triangle_mesh(str(mesh)).vertices)
+        assert len(vertices) > 1000, mesh.name
+        assert rod_points(vertices, true_vertices, hung) == 0, mesh.name
+
+
+@pytest.mark.slow
 def test_merging_scans_of_different_objects_is_refused(tmp_path, capsys):
     from scanner.commands.main import main
     from scanner.configs.scan import load_scan_config
