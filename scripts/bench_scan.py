@@ -8,7 +8,9 @@ per-view work), after_last_capture_cpu_s, stage_s, robot_motion_s, robot_motion_
 process), peak_rss_child_mb (the largest child process: the Poisson solver), views_captured;
 cpu_s (CPU seconds the scan used, the Poisson solver's included), cores, and cpu_bound_wall_s =
 cpu_s / cores: the wall time this scan cannot go below on this machine without removing
-computation, however well its stages overlap.
+computation, however well its stages overlap; chamfer_observed_mm of the model against the
+simulator's truth. --keep DIR keeps the scan directory there (to time surfaces on its fused
+cloud, or to reconstruct it again).
 """
 
 from __future__ import annotations
@@ -55,13 +57,16 @@ def main() -> None:
         default=1,
         help="passes over the object, re-hung between them (default 1)",
     )
+    parser.add_argument(
+        "--keep", type=Path, help="keep the scan directory here (default: a removed temporary one)"
+    )
     args = parser.parse_args()
     config = with_overrides(
         ScanConfig(), object_spec=args.object, views=args.views, seed=0, hangings=args.hangings
     )
     with tempfile.TemporaryDirectory() as tmp:
         cpu_start = cpu_seconds()
-        result = run_scan(config, Path(tmp) / "scan")
+        result = run_scan(config, args.keep or Path(tmp) / "scan")
         cpu_s = cpu_seconds() - cpu_start
         naive = naive_order_motion_s(config, result.scan_dir)
     r = result.report
@@ -92,6 +97,7 @@ def main() -> None:
                 "pairs_registered_while_scanning": r.get("pairs_registered_while_scanning"),
                 "last_capture_to_results_s": round(r.get("last_capture_to_results_s", -1.0), 2),
                 "views_captured": r["views_captured"],
+                "chamfer_observed_mm": r.get("chamfer_observed_mm"),
                 "views_planned": r["views_planned"],
                 "cpu_s": round(cpu_s, 1),
                 "cores": cores,

@@ -39,6 +39,13 @@ class SurfaceConfig:
     # took twice as long (12 s of a 24-view scan) for nothing measurable: Chamfer on the
     # observed surface (mm, depth 8 / 9) vase 0.264 / 0.267, bunny 0.242 / 0.234, fandisk
     # 0.271 / 0.264, teapot 0.226 / 0.224, spot 0.463 / 0.463, bracket 0.90 / 1.39.
+    # Cheaper solves measured on the vase's fused clouds (scripts/bench_poisson.py; solve CPU s
+    # / observed Chamfer mm, 24 views | 48 views | two hangings): Open3D as here 5.0 / 0.138 |
+    # 5.2 / 0.143 | 7.1 / 0.085; the cloud first averaged over 1.5 octree cells 4.3 / 0.142 |
+    # 4.7 / 0.152 | 6.7 / 0.087, over 2 cells (in effect depth 7) 1.9 / 0.143 | 1.8 / 0.159 |
+    # 2.3 / 0.100; PoissonRecon itself through pymeshlab, one thread (its output repeats)
+    # 11.0 / 0.138 (24 views), two threads 54 CPU s on a loaded machine and another mesh each
+    # run. The depth whose cells match the 1 mm voxel on these ~0.2 m objects is this 8.
     poisson_depth: int = 8
     # Density trimming (2 % in a prototype of this pipeline) punches holes in well-covered surfaces
     # too (356 holes on a fully covered synthetic pebble); trimming by distance to the data
