@@ -204,8 +204,12 @@ def scan_config_from_dict(data: dict, where: str) -> ScanConfig:
     object_center_m hangs the object where the arm reaches most of the viewpoint sphere (left
     None here, laid out by scanner.scan.layout); the RX60's keeps its measured cell."""
     config = from_dict(ScanConfig, data, where)
-    if config.robot != "rx60" and "object_center_m" not in (data.get("cell") or {}):
+    cell = data.get("cell") or {}
+    if config.robot != "rx60" and "object_center_m" not in cell:
         config = replace(config, cell=replace(config.cell, object_center_m=None))
+    if config.robot != "rx60" and "support_top_m" not in cell:
+        # The RX60's support place is not another arm's: its object stands where it hangs.
+        config = replace(config, cell=replace(config.cell, support_top_m=None))
     return config
 
 
@@ -280,6 +284,8 @@ def with_overrides(
         if robot != "rx60" and config.cell.object_center_m == WorkcellConfig().object_center_m:
             # The RX60's cell, not one chosen for this arm: laid out from its reach instead.
             config = replace(config, cell=replace(config.cell, object_center_m=None))
+        if robot != "rx60" and config.cell.support_top_m == WorkcellConfig().support_top_m:
+            config = replace(config, cell=replace(config.cell, support_top_m=None))
     if driver is not None:
         check_driver(driver, "--driver")
         config = replace(config, driver=driver)
