@@ -17,9 +17,9 @@ from dataclasses import replace
 import numpy as np
 
 from planners.reach import CellReach, ReachSettings, best_center
+from reconstruction.common.errors import ScannerError
 from robots.arms.default import arm_of
 from robots.cache import cache_dir
-from reconstruction.common.errors import ScannerError
 from scanner.configs.scan import ScanConfig
 from scanner.scan.world import software_camera
 

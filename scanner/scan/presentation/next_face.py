@@ -85,13 +85,15 @@ def face_words(down_W: np.ndarray) -> str:
     return f"the side now facing {side_name(a)} (direction {a[0]:+.2f} {a[1]:+.2f} {a[2]:+.2f})"
 
 
-def lay_instruction(choice: FaceChoice, index: int, picture: str | None) -> str:
-    """What the person is told for pass `index` (0-based)."""
+def lay_instruction(
+    choice: FaceChoice, index: int, picture: str | None, support: str = "table"
+) -> str:
+    """What the person is told for pass `index` (0-based), laying it on the `support`."""
     p = choice.touch_W
     seen_in = f" (see {picture})" if picture else ""
     return (
         f"pass {index + 1}: turn the object by about {turn_deg(choice.down_W):.0f} deg and lay "
-        f"it on the table on {face_words(choice.down_W)}: the point now at x {p[0]:.3f}, "
-        f"y {p[1]:.3f}, z {p[2]:.3f} m touches the table; put it down in the middle of the "
-        f"table, at any turn about the vertical{seen_in}; then confirm"
+        f"it on the {support} on {face_words(choice.down_W)}: the point now at x {p[0]:.3f}, "
+        f"y {p[1]:.3f}, z {p[2]:.3f} m touches the {support}; put it down in the middle of the "
+        f"{support}, at any turn about the vertical{seen_in}; then confirm"
     )
