@@ -15,6 +15,7 @@ import numpy as np
 from reconstruction.common.errors import ScannerError
 from reconstruction.depth.camera_model import CameraModel
 from reconstruction.evaluation.metrics import TriangleSurface
+from reconstruction.evaluation.support import SupportPlane
 from reconstruction.pipeline import ReconstructionConfig
 from reconstruction.registration.filtering import VIEW_THREADS, filter_views
 from reconstruction.registration.views import ViewCloud
@@ -177,6 +178,18 @@ def fixture_line(config: ScanConfig) -> FixtureLine:
     return FixtureLine(tuple(cell.object_center_m), (0.0, 0.0, 1.0), cell.rod_radius_m)
 
 
+def support_plane(config: ScanConfig) -> SupportPlane | None:
+    """The top of what holds the object from below in each pass (the table's top, the
+    turntable's disc; fixed in the cell, so in each pass's own frame the same), None for a
+    hanging: the views see nothing on or below it."""
+    if config.presentation == "hanging":
+        return None
+    from robots.models.turntable import turntable_geometry
+
+    # The table's top and the disc's stand at the same place (robots/models).
+    return SupportPlane(np.array(turntable_geometry(config.cell).p_top_W), np.array([0, 0, 1.0]))
+
+
 def with_roi_centre(config: ReconstructionConfig, centre: np.ndarray) -> ReconstructionConfig:
     """The region of interest around the scan centre unless the configuration placed it."""
     if config.filter.roi.center_m is not None:
@@ -201,6 +214,8 @@ class Gathered:
     truths: list  # per scan: (Truth, true surface, truth file) or None
     remove: object  # remove_points(points_W, index) for all scans
     fixtures: list[FixtureLine] = field(default_factory=list)  # per hanging, its rod's line
+    # Per hanging, the top of its support in its own frame (None: it hung).
+    supports: list[SupportPlane | None] = field(default_factory=list)
     robots: list[str] = field(default_factory=list)  # per scan, its configuration's arm
 
 
@@ -234,6 +249,7 @@ def gather_views(
         out.joints.update({i + offset: q for i, q in captured.joints.items()})
         out.hangings.extend([i + offset for i in h] for h in scan.hangings)
         out.fixtures.extend(fixture_line(scan.config) for _ in scan.hangings)
+        out.supports.extend(support_plane(scan.config) for _ in scan.hangings)
         out.scan_of.update({v.index + offset: k for v in captured.views})
         out.truths.append(load_truth_of(scan.root))
         out.robots.append(scan.config.robot)

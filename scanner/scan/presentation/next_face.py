@@ -7,7 +7,8 @@ smallest turn that takes n down, then by a yaw nobody controls; for the cameras 
 them by R^T about the centre, and a candidate's gain is the share of the closed model's unseen
 samples the pass's cameras would see after it, averaged over yaws. Unlike a hanging, only the
 faces the model can rest on are candidates: its hull's faces that hold its centre of mass
-(reconstruction/hangings/resting_poses.py), computed on the closed model so far.
+(reconstruction/hangings/resting_poses.py), computed on the closed model so far; and the face
+laid down is hidden from that pass by the support it lies on, whatever the views.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 
 from reconstruction.common.transforms import rotation_about
 from reconstruction.evaluation.coverage import SeenSurface
+from reconstruction.evaluation.support import SupportPlane
 from reconstruction.hangings.resting_poses import centre_of_mass, resting_poses
 from scanner.scan.next_hanging import UP, YAWS, side_name, unseen_sight
 
@@ -65,8 +67,11 @@ def next_best_face(
         if pose.down_O @ -UP > math.cos(SAME_FACE_RAD):
             continue
         R = pose.R_TO()
+        # The face laid down touches the support: hidden from the pass, whatever it faces.
+        support = SupportPlane(pose.centre_O, -pose.down_O)
         gain = sum(
-            sight.gain(d, rotation_about(UP, 2 * math.pi * j / yaws) @ R) for j in range(yaws)
+            sight.gain(d, rotation_about(UP, 2 * math.pi * j / yaws) @ R, support)
+            for j in range(yaws)
         )
         gain /= yaws
         if best is None or gain > best.gain:

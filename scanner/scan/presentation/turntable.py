@@ -32,6 +32,7 @@ from reconstruction.hangings.turntable import turn_about_axis
 from robots.drivers.interfaces import TurntableDriver
 from robots.simulation.truth import hung_pose_of
 from robots.simulation.turntable import SimulatedTurntable, true_axis
+from scanner.reconstruct.scan_views import support_plane
 from scanner.scan.presentation.base import Presentation
 from scanner.scan.presentation.next_face import next_best_face
 from scanner.scan.presentation.next_turn import next_best_turn, wrapped
@@ -140,7 +141,8 @@ class Turntable(Presentation):
         choice = None
         if not self._laid():  # after a lay, no turn is known: faces only
             used = [wrapped(a - now) for a in angles[:index]]
-            choice = next_best_turn(seen, centre, radius, view_directions, used)
+            support = support_plane(self.config)
+            choice = next_best_turn(seen, centre, radius, view_directions, used, support=support)
         face = next_best_face(seen, centre, radius, view_directions)
         last = index >= min(self.config.max_hangings, MAX_PASSES) - 1
         turn_gain = 0.0 if choice is None else choice.gain
