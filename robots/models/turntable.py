@@ -1,10 +1,10 @@
 """The motorised turntable of the cell: a disc on a post under the object, turning about the
 vertical through the scan centre.
 
-Its top is where the object stands: half the object's size below the object's centre, so an
-object of the configured size fits between the disc and the viewpoints' centre. The disc is
-small (a fifth of the object's size in radius): the arm scans from below, and the disc hides
-only the object's footprint. Its geometry is registered as collision geometry of the world, so
+Its top is where the object stands: half the object's size below the object's centre, which a
+turntable's scan places above the cell's `support_top_m` (scanner/scan/layout.py: low and in
+front of the arm, which sees the object from above and around). The disc is small (a fifth of
+the object's size in radius): it hides only the object's footprint. Its geometry is registered as collision geometry of the world, so
 the planner avoids it and the cell filter removes its points like the rod's.
 """
 
