@@ -118,3 +118,27 @@ def test_the_next_best_face_never_lays_the_unseen_side_on_the_support():
     choice = next_best_face(seen, centre, 0.5, _around(math.radians(-60)))
     assert choice.down_W @ UP < 0.5
     assert abs(choice.down_W[2]) < 1e-9 and choice.gain > 0.05
+
+
+def test_the_cell_filter_removes_all_below_the_support_top_in_the_pass_frame():
+    from robots.arms.default import DEFAULT_ARM
+    from robots.models.turntable import turntable_geometry
+    from scanner.configs.scan import ScanConfig
+    from scanner.reconstruct.scan_views import geometry_filter
+    from scanner.scan.layout import presented
+    from scanner.scan.world import software_camera
+
+    config = presented(ScanConfig(presentation="turntable"))
+    model, X_FC = software_camera(config)
+    keep = geometry_filter(config, X_FC, model, {0: DEFAULT_ARM.home_q}, 0.01)
+    x, y, top = turntable_geometry(config.cell).p_top_W
+    points = np.array(
+        [
+            [x + 0.03, y, top + 0.02],  # the object, 2 cm above the disc
+            [x, y, top + 0.15],  # its top
+            [x + 0.03, y, top - 0.03],  # a wrong match under the disc, 3 cm off any geometry
+            [x + 0.15, y + 0.1, top - 0.04],  # one over the cell's table, 1 cm above it
+            [x + 0.03, y, top + 0.002],  # what touches the disc goes with it
+        ]
+    )
+    assert keep(points, 0).tolist() == [True, True, False, False, False]

@@ -59,6 +59,11 @@ class ProcessingConfig:
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     # Points closer than this to the robot, tool, rod or cell primitives are removed.
     remove_margin_m: float = non_negative(0.01)
+    # On a table or turntable, points less than this above its top (in each pass's own frame)
+    # are removed: the top, its leg, the cell's table under it, and the stereo's wrong matches
+    # on their plain faces, which land centimetres off them (beyond remove_margin_m) but below
+    # the top. Small: the object's lowest millimetres go with them (other passes show them).
+    support_margin_m: float = non_negative(0.003)
     # The surface whose metrics are the report's headline keys.
     primary_surface: str = "poisson"
     mesh_formats: tuple[str, ...] = (".ply",)

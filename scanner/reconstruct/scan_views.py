@@ -144,8 +144,18 @@ def load_truth_of(scan_dir: Path):
 
 
 def geometry_filter(
-    config: ScanConfig, X_FC: np.ndarray, stereo: CameraModel, joints: dict, margin_m: float
+    config: ScanConfig,
+    X_FC: np.ndarray,
+    stereo: CameraModel,
+    joints: dict,
+    margin_m: float,
+    support_margin_m: float | None = None,
 ):
+    """remove_points(points_W, index) of the scan's cell: points within `margin_m` of the
+    robot, its tool and the cell's geometry at the view's joints, and on a table or turntable
+    every point less than `support_margin_m` (default: the scan's `processing`) above its top.
+    A pass's points are in its own frame here (the pipeline takes them back there), where the
+    support stands."""
     from robots.arms.default import arm_of
     from robots.models.point_filter import make_geometry_filter
     from robots.models.workcell import build_workcell
@@ -159,7 +169,13 @@ def geometry_filter(
         presentation=config.presentation,
     )
     keep = make_geometry_filter(cell, margin_m)
-    return lambda points_W, index: keep(points_W, joints[index])
+    support = support_plane(config)
+    if support is None:
+        return lambda points_W, index: keep(points_W, joints[index])
+    above_m = config.processing.support_margin_m if support_margin_m is None else support_margin_m
+    return lambda points_W, index: (  # noqa: E731
+        keep(points_W, joints[index]) & support.exposed(points_W, above_m)
+    )
 
 
 def fixture_line(config: ScanConfig) -> FixtureLine:
@@ -254,7 +270,14 @@ def gather_views(
         out.truths.append(load_truth_of(scan.root))
         out.robots.append(scan.config.robot)
         filters.append(
-            geometry_filter(scan.config, X, camera, captured.joints, processing.remove_margin_m)
+            geometry_filter(
+                scan.config,
+                X,
+                camera,
+                captured.joints,
+                processing.remove_margin_m,
+                processing.support_margin_m,
+            )
         )
     remove = lambda points_W, index: filters[index // INDEX_STRIDE](  # noqa: E731
         points_W, index % INDEX_STRIDE
@@ -270,7 +293,14 @@ def model_so_far(
     processing = scan.config.processing
     config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
     captured = capture_views(scan, prepare_sensor(scan, stereo), X_FC, processing.stereo, indices)
-    remove = geometry_filter(scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m)
+    remove = geometry_filter(
+        scan.config,
+        X_FC,
+        stereo,
+        captured.joints,
+        processing.remove_margin_m,
+        processing.support_margin_m,
+    )
     views, clouds, _ = filter_views(captured.views, X_FC, config.filter, remove)
     X_WC = [v.X_WF @ X_FC for v in views]
     fused = fuse_clouds(clouds, X_WC, config.surfaces.fused_voxel_size_m)
