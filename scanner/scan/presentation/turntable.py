@@ -34,9 +34,9 @@ from robots.simulation.truth import hung_pose_of
 from robots.simulation.turntable import SimulatedTurntable, true_axis
 from scanner.reconstruct.scan_views import support_plane
 from scanner.scan.presentation.base import Presentation
+from scanner.scan.presentation.laying import face_request, lay, quarter_turn
 from scanner.scan.presentation.next_face import next_best_face
 from scanner.scan.presentation.next_turn import next_best_turn, wrapped
-from scanner.scan.presentation.table import face_request, lay, quarter_turn
 from scanner.scan.presentation.turntable_check import TurntableStoppedError, turn
 from scanner.scan.world import ScanWorld
 
