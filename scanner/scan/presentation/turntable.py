@@ -12,7 +12,8 @@ The turntable turns about the vertical only: the side it stands on stays unseen,
 turn. A scan whose underside is still unseen ends with the object laid on another face onto the
 turntable's disc (the next-best face, `next_face.py`, as on the table: a person lays it, the
 simulated one with a person's error): the last pass a turntable scan may make
-(`MAX_PASSES`), or an earlier one where laying it shows more than any turn. A laid pass is
+(`MAX_PASSES`), or an earlier one where no turn would show anything more (the turns come
+first: their known turn aligns a pass without the search). A laid pass is
 recorded (`turntable_laid_passes`); its turn is not known, so it and every pass after it align
 by the search for hypotheses, as a hanging, and calibrate nothing of the axis.
 
@@ -145,10 +146,11 @@ class Turntable(Presentation):
             choice = next_best_turn(seen, centre, radius, view_directions, used, support=support)
         face = next_best_face(seen, centre, radius, view_directions)
         last = index >= min(self.config.max_hangings, MAX_PASSES) - 1
-        turn_gain = 0.0 if choice is None else choice.gain
-        if face is not None and face.gain > 0 and (last or face.gain > turn_gain):
+        # Turned while a turn shows anything: a known turn aligns the pass without the search.
+        turns_done = choice is None or choice.gain < self.config.min_hanging_gain
+        if face is not None and face.gain > 0 and (last or turns_done):
             request = face_request(seen, face, centre, index, self.store.root, SUPPORT_WORDS)
-            why = "the last pass" if last else "more than any turn shows"
+            why = "the last pass" if last else "no turn shows more"
             request["words"] += f" (laid, not turned: {why})"
             return request
         if choice is None or choice.gain <= 0:
