@@ -68,7 +68,7 @@ def test_a_turntable_scan_ends_laid_on_another_face_and_aligns(laid_turntable_sc
     assert [p["angle_deg"] for p in passes[:2]] == pytest.approx([0.0, 180.0])
     assert "laid_on" in passes[2] and "turn_deg" not in passes[2]
     manifest = yaml.safe_load((scan / "scan.yaml").read_text())
-    assert manifest["turntable_laid_passes"] == [2]
+    assert list(manifest["turntable_laid_passes"]) == ["2"]
     # The simulated person laid it so: the side that faced the robot lies underneath, on the
     # disc (its lowest point on the disc's top).
     X1, X2 = (hung_pose_of(scan / "truth.yaml", p) for p in (1, 2))

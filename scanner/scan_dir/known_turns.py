@@ -24,7 +24,7 @@ def known_turns(scan: SavedScan, passes: int | None = None) -> KnownTurns | None
         return None
     g = turntable_geometry(scan.config.cell)
     # Passes laid on another face (scan/presentation/turntable.py) end the known turns.
-    laid = [int(p) for p in manifest.get("turntable_laid_passes", [])]
+    laid = [int(p) for p in manifest.get("turntable_laid_passes", {})]
     return KnownTurns(
         tuple(float(a) for a in angles),
         Axis(np.array(g.p_top_W), g.u_W),

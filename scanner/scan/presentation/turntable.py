@@ -13,9 +13,10 @@ turn. A scan whose underside is still unseen ends with the object laid on anothe
 turntable's disc (the next-best face, `next_face.py`, as on the table: a person lays it, the
 simulated one with a person's error): the last pass a turntable scan may make
 (`MAX_PASSES`), or an earlier one where no turn would show anything more (the turns come
-first: their known turn aligns a pass without the search). A laid pass is
-recorded (`turntable_laid_passes`); its turn is not known, so it and every pass after it align
-by the search for hypotheses, as a hanging, and calibrate nothing of the axis.
+first: their known turn aligns a pass without the search). A laid pass is recorded
+(`turntable_laid_passes`: by pass, the face it was laid on); its turn is not known, so it and
+every pass after it align by the search for hypotheses, as a hanging, and calibrate nothing of
+the axis.
 
 A turntable that does not answer, or reports another angle than it was told, is refused: before
 anything moves (`turntable_check.check_turntable`, exit 2), or during the scan
@@ -57,8 +58,9 @@ class Turntable(Presentation):
     def _angles(self) -> list[float]:
         return [float(a) for a in self.store.read_manifest().get(ANGLES_KEY, [])]
 
-    def _laid(self) -> list[int]:
-        return [int(p) for p in self.store.read_manifest().get(LAID_KEY, [])]
+    def _laid(self) -> dict[str, str]:
+        """The passes laid on another face (by pass number from 0, as text): the face."""
+        return dict(self.store.read_manifest().get(LAID_KEY, {}))
 
     def begin(self, world: ScanWorld, current: int) -> ScanWorld:
         angles = self._angles()
@@ -71,7 +73,7 @@ class Turntable(Presentation):
                 X_WO_zero = world.sim.truth.X_WO
             axis = true_axis(self.config.cell, self.config.error_model.seed)
             angle = angles[current] if current < len(angles) else 0.0
-            if any(p <= current for p in self._laid()):
+            if any(int(p) <= current for p in self._laid()):
                 # Laid anew since the first pass: the pose now, turned back to the zero angle.
                 X_WO_now = hung_pose_of(self.store.root / "truth.yaml", current)
                 X_WO_now = world.sim.truth.X_WO if X_WO_now is None else X_WO_now
@@ -120,7 +122,7 @@ class Turntable(Presentation):
         # Recorded before anything moves: a resume knows the pass was laid, not turned.
         self.store.update_manifest(
             **{
-                LAID_KEY: sorted({*self._laid(), index}),
+                LAID_KEY: {**self._laid(), str(index): request.get("face", request["words"])},
                 ANGLES_KEY: [*angles[:index], angle, *angles[index + 1 :]],
             }
         )
@@ -169,17 +171,17 @@ class Turntable(Presentation):
 
     def report(self, manifest: dict) -> dict:
         angles = [float(a) for a in manifest.get(ANGLES_KEY, [])]
-        laid = set(manifest.get(LAID_KEY, []))
-        asked = manifest.get("hanging_requests", {})
+        laid = manifest.get(LAID_KEY, {})
         why = self.why(manifest, "turned evenly around")
+        why_laid = self.why(manifest, "the last laid anew: no turn shows what it stands on")
         passes = []
         for p, angle in enumerate(angles):
             record = {"pass": p + 1, "angle_deg": math.degrees(angle)}
-            if p in laid:
-                record["laid_on"] = asked.get(str(p), {}).get("face", "another face")
+            if str(p) in laid:
+                record["laid_on"] = laid[str(p)]
+                record["why"] = why_laid.get(p, "-")
             elif p > 0:
                 record["turn_deg"] = math.degrees(wrapped(angle - angles[p - 1]))
-            if p > 0:
                 record["why"] = why.get(p, "-")
             passes.append(record)
         return {"kind": self.kind, "passes": passes}
