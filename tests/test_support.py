@@ -1,19 +1,16 @@
 """A table or turntable as the object's support: it stands where the arm sees the object from
-above, it hides the face lying on it from the views (coverage, next-best face and turn), its
-points never reach a pass's fused cloud, and a turntable scan ends laid on another face."""
+above, it hides the face lying on it from the views (coverage, next-best face and turn), and
+the cell filter removes all below its top in each pass's own frame (the scans on a support:
+tests/test_turntable_scan.py, tests/test_table.py)."""
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
 import pytest
-import yaml
 
-from tests.conftest import shared_data
 from tests.test_table import _around, _seen_box
-from tests.test_turntable_scan import TURNTABLE
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -31,52 +28,6 @@ def test_a_support_stands_where_the_views_look_from_above():
     assert table.scan_center_m[2] < hanging.scan_center_m[2] - 0.5
     assert table.views.elevation_min_rad == 0.0
     assert table.views.elevation_max_rad == hanging.views.elevation_max_rad
-
-
-# Five views a pass at 640x480 (the turntable test's settings with fewer views), three fixed
-# passes: turned by 0 and 180 deg, then rolled a quarter turn onto another face on the disc.
-LAID = {**TURNTABLE, "views": {**TURNTABLE["views"], "count": 5}}
-
-
-@pytest.fixture(scope="module")
-def laid_turntable_scan(tmp_path_factory):
-    from scanner.configs.scan import load_scan_config
-    from scanner.scan.run import run_scan
-
-    bunny = str(shared_data("meshes/stanford-bunny.obj"))
-    tmp = tmp_path_factory.mktemp("laid")
-    path = tmp / "small.yaml"
-    config = {**LAID, "object": bunny, "hangings": 3, "presentation": "turntable"}
-    path.write_text(yaml.safe_dump(config))
-    return run_scan(load_scan_config(path), tmp / "bunny").scan_dir
-
-
-@pytest.mark.slow
-def test_a_turntable_scan_ends_laid_on_another_face_and_aligns(laid_turntable_scan):
-    from robots.simulation.truth import hung_pose_of
-
-    scan = laid_turntable_scan
-    r = json.loads((scan / "results" / "report.json").read_text())
-    assert r["status"] == "complete" and r["views_captured"] == 15
-    second, third = r["hangings"][1], r["hangings"][2]
-    # The turned pass by its known turn; the laid one by the search (no turn is known).
-    assert second["verified"] and second["known_turn_verified"]
-    assert third["verified"] and not third.get("known_turn_verified", False)
-    # The bounds of the two-hanging test (640x480: about twice the product's stereo noise).
-    assert r["alignment_error_mm"] < 1.0 and r["alignment_error_deg"] < 0.5
-    passes = r["presentation"]["passes"]
-    assert [p["angle_deg"] for p in passes[:2]] == pytest.approx([0.0, 180.0])
-    assert "laid_on" in passes[2] and "turn_deg" not in passes[2]
-    manifest = yaml.safe_load((scan / "scan.yaml").read_text())
-    assert list(manifest["turntable_laid_passes"]) == ["2"]
-    # The simulated person laid it so: the side that faced the robot lies underneath, on the
-    # disc (its lowest point on the disc's top).
-    X1, X2 = (hung_pose_of(scan / "truth.yaml", p) for p in (1, 2))
-    down_O = X1[:3, :3].T @ [-1.0, 0.0, 0.0]
-    assert (X2[:3, :3] @ down_O) @ -UP > math.cos(math.radians(45))
-    # Laid anew, the underside the turns never showed is seen: more than the turns alone.
-    turned = [p["observed_fraction"] for p in r["hangings"][:2]]
-    assert r["observed_fraction"] > max(turned) + 0.05
 
 
 def test_the_face_lying_on_the_support_counts_as_unseen():
