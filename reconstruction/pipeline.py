@@ -47,7 +47,7 @@ from reconstruction.hangings.merge import (
     PlacedHangings,
     left_out,
     place_hangings,
-    to_first_frame,
+    placed_supports,
 )
 from reconstruction.hangings.turntable import KnownTurns
 from reconstruction.registration.all_views import EdgeReport
@@ -370,26 +370,6 @@ def _surface_config(
     return config
 
 
-def _placed_supports(
-    supports: Sequence[SupportPlane | None],
-    groups: Sequence[Sequence[int]],
-    alignments,
-    views: int,
-) -> list[SupportPlane | None] | None:
-    """Per view (list position), its hanging's support where the alignment placed that
-    hanging (a left-out one's stays in its own frame); None without supports."""
-    if not any(s is not None for s in supports):
-        return None
-    T_of = to_first_frame(alignments)
-    out: list[SupportPlane | None] = [None] * views
-    for h, group in enumerate(groups):
-        support = supports[h] if h < len(supports) else None
-        moved = None if support is None or T_of[h] is None else support.moved(T_of[h])
-        for k in group:
-            out[k] = moved if moved is not None else support
-    return out
-
-
 def _surfaces(
     inputs: ReconstructionInputs,
     X_FC_nominal: np.ndarray,
@@ -407,7 +387,7 @@ def _surfaces(
     voxel_m = config.surfaces.fused_voxel_size_m
     coverage: list[Coverage] = []
 
-    supports = _placed_supports(inputs.supports, groups, hangings.alignments, len(views))
+    supports = placed_supports(inputs.supports, groups, hangings.alignments, len(views))
 
     def estimate_coverage(fused: FusedCloud) -> None:
         with timer("coverage"):
