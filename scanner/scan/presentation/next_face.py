@@ -60,12 +60,16 @@ def next_best_face(
     if sight is None:
         return None
     v, t = seen.surface.vertices, seen.surface.triangles
-    poses = resting_poses(v, centre_of_mass(v, t), MIN_MARGIN_M)
+    com = centre_of_mass(v, t)
+    poses = [p for p in resting_poses(v, com, MIN_MARGIN_M) if not _lies_on(p)]
+    if not poses:
+        # A round object's hull is slivers, none holding it 5 mm inside its edges (the teapot
+        # on its side): the most probable faces still say which side to put down, and it
+        # rolls onto the stable one nearest.
+        poses = [p for p in resting_poses(v, com) if not _lies_on(p)]
     d = np.asarray(view_directions, float).reshape(-1, 3)
     best: FaceChoice | None = None
     for pose in poses[:MAX_FACES]:
-        if pose.down_O @ -UP > math.cos(SAME_FACE_RAD):
-            continue
         R = pose.R_TO()
         # The face laid down touches the support: hidden from the pass, whatever it faces.
         support = SupportPlane(pose.centre_O, -pose.down_O)
@@ -77,6 +81,11 @@ def next_best_face(
         if best is None or gain > best.gain:
             best = FaceChoice(pose.down_O.copy(), pose.centre_O.copy(), gain, pose.probability)
     return best
+
+
+def _lies_on(pose) -> bool:
+    """Whether the object lies on that face now."""
+    return bool(pose.down_O @ -UP > math.cos(SAME_FACE_RAD))
 
 
 def turn_deg(down_W: np.ndarray) -> float:
