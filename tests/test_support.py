@@ -93,3 +93,25 @@ def test_the_cell_filter_removes_all_below_the_support_top_in_the_pass_frame():
         ]
     )
     assert keep(points, 0).tolist() == [True, True, False, False, False]
+
+
+def test_a_round_object_still_gets_a_face_to_lie_on():
+    import open3d as o3d
+
+    from reconstruction.evaluation.coverage import SeenSurface
+    from reconstruction.evaluation.metrics import SurfaceSamples, TriangleSurface, sample_surface
+    from reconstruction.hangings.resting_poses import centre_of_mass, resting_poses
+    from scanner.scan.presentation.next_face import MIN_MARGIN_M, next_best_face
+
+    centre = np.array([0.7, 0.0, 0.15])
+    ball = o3d.geometry.TriangleMesh.create_sphere(0.08, resolution=30)
+    v = np.asarray(ball.vertices) + centre
+    surface = TriangleSurface(v, np.asarray(ball.triangles))
+    # Its hull is slivers: none holds it 5 mm inside its edges.
+    assert not resting_poses(v, centre_of_mass(v, surface.triangles), MIN_MARGIN_M)
+    samples = sample_surface(surface, 3000)
+    n = (samples.points - centre) / np.linalg.norm(samples.points - centre, axis=1)[:, None]
+    seen = SeenSurface(surface, SurfaceSamples(samples.points, n), n[:, 2] > -0.5)
+    choice = next_best_face(seen, centre, 0.5, _around(math.radians(50)))
+    # Still a side to put down: one that turns the unseen underside towards the cameras above.
+    assert choice is not None and choice.gain > 0.05 and choice.down_W[2] > 0.0
