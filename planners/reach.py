@@ -108,11 +108,13 @@ def sphere_share(
     radius_m: float,
     settings: ReachSettings,
     padding_m: float = PlannerConfig().padding_m,
+    presentation: str = "hanging",
 ) -> float:
     """The share of the coarse sphere of `radius_m` around the cell's object centre from which
     the arm's camera (left optical frame at X_FC, its partner at X_CR) looks at the centre with
-    an IK solution collision-free in the planner's view of `cell`."""
-    workcell = build_workcell(cell, None, X_FC, X_CR, arm)
+    an IK solution collision-free in the planner's view of `cell` (the object held by
+    `presentation`'s carrier: the rod, the turntable or the table)."""
+    workcell = build_workcell(cell, None, X_FC, X_CR, arm, presentation=presentation)
     checker = CollisionChecker(workcell, padding_m, PlannerConfig().edge_step_rad)
     X_MC = rig_centre_offset(X_CR)
     shoulder, reach = shoulder_and_reach_m(arm)

@@ -33,6 +33,7 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.common.stage_timer import StageListener, StageTimer
 from reconstruction.common.transforms import check_pose
 from reconstruction.evaluation.coverage import Coverage, coverage_estimate
+from reconstruction.evaluation.support import SupportPlane
 from reconstruction.handeye.correction import HandEyeConfig, HandEyeResult
 from reconstruction.handeye.rounds import (
     CorrectedViews,
@@ -42,7 +43,12 @@ from reconstruction.handeye.rounds import (
     register_and_correct,
 )
 from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment
-from reconstruction.hangings.merge import PlacedHangings, left_out, place_hangings
+from reconstruction.hangings.merge import (
+    PlacedHangings,
+    left_out,
+    place_hangings,
+    placed_supports,
+)
 from reconstruction.hangings.turntable import KnownTurns
 from reconstruction.registration.all_views import EdgeReport
 from reconstruction.registration.filtering import (
@@ -227,7 +233,9 @@ class ReconstructionInputs:
         model (its views in no result but the coverage per hanging, its alignment recorded
         unverified) instead of refusing the whole result.
     turns: the passes' known turns (a turntable's angles and axis), the starting guess of
-        each pass's alignment (None: the object was re-hung, the turn is unknown)."""
+        each pass's alignment (None: the object was re-hung, the turn is unknown).
+    supports: per hanging, the top of what held the object from below in its own frame
+        (None: it hung), which hides what lay on it from the coverage estimate's views."""
 
     views: Sequence[ViewCloud]
     X_FC_nominal: np.ndarray
@@ -240,6 +248,7 @@ class ReconstructionInputs:
     arriving: ArrivingPairs | None = None
     leave_out_unaligned: bool = False
     turns: KnownTurns | None = None
+    supports: Sequence[SupportPlane | None] = ()
 
 
 def reconstruct_views(
@@ -378,13 +387,24 @@ def _surfaces(
     voxel_m = config.surfaces.fused_voxel_size_m
     coverage: list[Coverage] = []
 
+    supports = placed_supports(inputs.supports, groups, hangings.alignments, len(views))
+
     def estimate_coverage(fused: FusedCloud) -> None:
         with timer("coverage"):
             eyes = [inputs.eyes_of(v.index, X) for v, X in zip(views, X_WC)]
-            coverage.append(coverage_estimate(fused, [eyes[k] for k in kept]))
+            coverage.append(
+                coverage_estimate(
+                    fused,
+                    [eyes[k] for k in kept],
+                    supports=supports and [supports[k] for k in kept],
+                )
+            )
             for group in map(sorted, groups if len(groups) > 1 else ()):
                 alone = fuse_clouds([clouds[k] for k in group], [X_WC[k] for k in group], voxel_m)
-                coverage.append(coverage_estimate(alone, [eyes[k] for k in group]))
+                group_supports = supports and [supports[k] for k in group]
+                coverage.append(
+                    coverage_estimate(alone, [eyes[k] for k in group], supports=group_supports)
+                )
 
     fused, meshes, surface_notes = build_surfaces(
         [views[k] for k in kept],

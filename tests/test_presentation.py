@@ -16,7 +16,7 @@ from reconstruction.hangings.alignment import align_pass, alignment_error
 from reconstruction.hangings.free_space import SeenSpace
 from reconstruction.hangings.turntable import Axis, KnownTurns, axis_from_turns, turn_about_axis
 from robots.models.objects import resolve_object
-from robots.models.turntable import standing_pose, turntable_geometry
+from robots.models.turntable import turntable_geometry
 from robots.models.workcell import WorkcellConfig
 from tests import turntable_hardware
 from tests.partial_clouds import partial_cloud, stripes
@@ -81,14 +81,17 @@ def test_the_object_stands_on_the_disc_and_the_cell_filter_removes_the_turntable
     from robots.models.camera_tool import nominal_X_FC
     from robots.models.point_filter import make_geometry_filter
     from robots.models.workcell import build_workcell
+    from robots.simulation.laying import first_lying_pose, stable_poses
 
     cell = WorkcellConfig()
     g = turntable_geometry(cell)
     mesh = resolve_object("pebble", cell.object_size_m)
-    X = standing_pose(cell, mesh.vertices)
+    X = first_lying_pose(cell, mesh)
     v_W = transform_points(X, mesh.vertices)
-    over = np.linalg.norm(v_W[:, :2] - g.p_top_W[:2], axis=1) <= g.disc_radius_m
-    assert over.any() and v_W[over, 2].min() == pytest.approx(g.p_top_W[2], abs=1e-12)
+    # Settled on the face underneath: nothing below the disc's top, its centre over the axis.
+    assert v_W[:, 2].min() == pytest.approx(g.p_top_W[2], abs=1e-12)
+    _, com_O = stable_poses(mesh)
+    np.testing.assert_allclose(transform_points(X, com_O[None])[0, :2], g.p_top_W[:2], atol=1e-12)
     stereo = default_stereo_camera()
     X_FC = nominal_X_FC(stereo.baseline_m)
     workcell = build_workcell(cell, None, X_FC, stereo.X_CR, presentation="turntable")

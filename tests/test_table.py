@@ -153,16 +153,14 @@ def test_the_simulated_person_lays_it_on_the_face_asked_for_at_a_random_yaw():
     np.testing.assert_allclose(X[:3, :3] @ [1.0, 0, 0], -UP, atol=1e-9)
 
 
-def test_the_next_best_face_lays_the_object_on_its_unseen_top():
+def _seen_box(centre: np.ndarray, seen_if) -> tuple:
+    """A 12 x 10 x 8 cm box at `centre`, samples on its faces, seen where `seen_if(normals)`."""
     from reconstruction.evaluation.coverage import SeenSurface
     from reconstruction.evaluation.metrics import SurfaceSamples, TriangleSurface
-    from scanner.scan.presentation.next_face import next_best_face
 
-    centre = np.array([0.4, 0.0, 1.0])
     box = _box_mesh(0.12, 0.1, 0.08)
     v = np.asarray(box.vertices) + centre
     surface = TriangleSurface(v, box.triangles)
-    # Samples on the box's faces; cameras from below saw all but the top.
     rng = np.random.default_rng(0)
     p = rng.uniform(-1, 1, (3000, 3)) * [0.06, 0.05, 0.04]
     axis = rng.integers(0, 3, len(p))
@@ -171,11 +169,23 @@ def test_the_next_best_face_lays_the_object_on_its_unseen_top():
     p[np.arange(len(p)), axis] = sign * half[axis]
     normals = np.zeros_like(p)
     normals[np.arange(len(p)), axis] = sign
-    seen = SeenSurface(surface, SurfaceSamples(p + centre, normals), normals[:, 2] < 0.5)
-    d = np.array([[math.cos(a) * 0.5, math.sin(a) * 0.5, -0.85] for a in np.linspace(0, 6, 6)])
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    choice = next_best_face(seen, centre, 0.5, d)
-    # Laid on its top, the cameras below see it.
+    return SeenSurface(surface, SurfaceSamples(p + centre, normals), seen_if(normals))
+
+
+def _around(elevation_rad: float, n: int = 6) -> np.ndarray:
+    """`n` unit view directions around the vertical at one elevation."""
+    c, s = math.cos(elevation_rad), math.sin(elevation_rad)
+    return np.array([[c * math.cos(a), c * math.sin(a), s] for a in np.linspace(0, 6, n)])
+
+
+def test_the_next_best_face_lays_the_object_on_its_top_to_show_its_underside():
+    from scanner.scan.presentation.next_face import next_best_face
+
+    centre = np.array([0.7, 0.0, 0.15])
+    # Cameras from above (as the cell sees a support) saw all but the face lying underneath.
+    seen = _seen_box(centre, lambda n: n[:, 2] > -0.5)
+    choice = next_best_face(seen, centre, 0.5, _around(math.radians(50)))
+    # Laid on its top, the underside faces the cameras above.
     np.testing.assert_allclose(choice.down_W, UP, atol=1e-9)
     assert choice.gain > 0.1
 

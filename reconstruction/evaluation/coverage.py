@@ -29,6 +29,7 @@ from reconstruction.evaluation.metrics import (
     sample_surface,
     visible_mask,
 )
+from reconstruction.evaluation.support import SupportPlane
 from reconstruction.surfaces.fused import FusedCloud
 from reconstruction.surfaces.topology import triangle_components
 
@@ -83,13 +84,16 @@ def seen_surface(
     camera_centres_W: Sequence[np.ndarray],
     samples: int = 50_000,
     support_m: float = SUPPORT_M,
+    supports: Sequence[SupportPlane | None] | None = None,
 ) -> SeenSurface:
     """The closed surface of `fused`, sampled, with the samples some view saw (facing,
-    unoccluded) that lie within `support_m` of a fused point."""
+    unoccluded, not on or below the top of what held the object in its pass: `supports`, per
+    view) that lie within `support_m` of a fused point."""
     surface = closed_surface(fused)
     points = sample_surface(surface, samples)
     held = distances_to_points(points.points, fused.points_W) <= support_m
-    return SeenSurface(surface, points, held & visible_mask(points, surface, camera_centres_W))
+    seen = visible_mask(points, surface, camera_centres_W, supports=supports)
+    return SeenSurface(surface, points, held & seen)
 
 
 def coverage_estimate(
@@ -97,13 +101,15 @@ def coverage_estimate(
     camera_centres_W: Sequence[np.ndarray],
     samples: int = 50_000,
     support_m: float = SUPPORT_M,
+    supports: Sequence[SupportPlane | None] | None = None,
 ) -> Coverage:
     """How much of the closed surface through the data the views saw and measured
     (`camera_centres_W`: per view a camera centre (3,) or its stereo eye centres (2, 3), as
-    `visible_mask` takes them; `support_m`: how near a fused point a seen part must be)."""
+    `visible_mask` takes them; `support_m`: how near a fused point a seen part must be;
+    `supports`: per view, the top of what held the object, as `visible_mask` takes them)."""
     if len(fused) < 100 or not len(camera_centres_W):
         return Coverage(0.0, math.nan)
-    seen = seen_surface(fused, camera_centres_W, samples, support_m)
+    seen = seen_surface(fused, camera_centres_W, samples, support_m, supports)
     v, t = seen.surface.vertices, seen.surface.triangles
     area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
     return Coverage(seen.fraction, float(area.sum()) * (1.0 - seen.fraction))

@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 
 from reconstruction.common.kdtree import query_workers
 from reconstruction.common.transforms import pose_difference
+from reconstruction.evaluation.support import SupportPlane
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,17 +125,24 @@ def visible_mask(
     camera_centres_W: Sequence[np.ndarray],
     max_incidence_rad: float = math.radians(80.0),
     offset_m: float = 1e-4,
+    supports: Sequence[SupportPlane | None] | None = None,
 ) -> np.ndarray:
     """True for samples that at least one view sees. A view is a camera centre (3,) or the eye
     centres (k, 3) of a stereo rig (see `StereoCamera.eye_centres_W`), all of which must see
     the sample. An eye sees it when the sample faces it (angle between its outward normal and
     the direction to the eye below `max_incidence_rad`) and the segment to it hits no triangle.
-    Rays start `offset_m` off the surface so that they do not hit their own triangle."""
+    Rays start `offset_m` off the surface so that they do not hit their own triangle.
+    `supports`: per view, the top of what holds the object in that view's pass (None: nothing),
+    which hides what lies on or below it (reconstruction/evaluation/support.py)."""
     scene, p, views = _shifted(samples, surface, camera_centres_W)
     seen = np.zeros(len(p), bool)
-    for eyes in views:
+    for k, eyes in enumerate(views):
+        todo = ~seen
+        support = None if supports is None else supports[k]
+        if support is not None:
+            todo &= support.exposed(samples.points)
         seen |= _seen_by_every_eye(
-            scene, p, samples.normals, eyes, ~seen, max_incidence_rad, offset_m
+            scene, p, samples.normals, eyes, todo, max_incidence_rad, offset_m
         )
     return seen
 
@@ -232,14 +240,15 @@ def truth_sampling(
     n_samples: int = 200_000,
     seed: int = 0,
     max_incidence_rad: float = math.radians(80.0),
+    supports: Sequence[SupportPlane | None] | None = None,
 ) -> tuple[SurfaceSamples, np.ndarray | None]:
     """Area-uniform samples of the true surface and which of them the cameras saw (None
-    without camera centres)."""
+    without camera centres; `supports`: per view, as `visible_mask` takes them)."""
     samples = sample_surface(truth, n_samples, seed)
     observed = (
         None
         if camera_centres_W is None
-        else visible_mask(samples, truth, camera_centres_W, max_incidence_rad)
+        else visible_mask(samples, truth, camera_centres_W, max_incidence_rad, supports=supports)
     )
     return samples, observed
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from reconstruction.common.errors import RefusedResultError, ScannerError
 from reconstruction.common.transforms import invert, transform_points
+from reconstruction.evaluation.support import SupportPlane
 from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment, align_pass
 from reconstruction.hangings.free_space import SeenSpace
 from reconstruction.hangings.turntable import KnownTurns
@@ -178,3 +179,23 @@ def in_own_frames(
     return lambda p_W, index: remove_points(  # noqa: E731
         transform_points(inverse[hanging_of[index]], p_W), index
     )
+
+
+def placed_supports(
+    supports: Sequence[SupportPlane | None],
+    groups: Sequence[Sequence[int]],
+    alignments,
+    views: int,
+) -> list[SupportPlane | None] | None:
+    """Per view (list position), its hanging's support where the alignment placed that
+    hanging (a left-out one's stays in its own frame); None without supports."""
+    if not any(s is not None for s in supports):
+        return None
+    T_of = to_first_frame(alignments)
+    out: list[SupportPlane | None] = [None] * views
+    for h, group in enumerate(groups):
+        support = supports[h] if h < len(supports) else None
+        moved = None if support is None or T_of[h] is None else support.moved(T_of[h])
+        for k in group:
+            out[k] = moved if moved is not None else support
+    return out

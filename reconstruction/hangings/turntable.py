@@ -62,14 +62,26 @@ def axis_from_turns(turns: Sequence[np.ndarray], p_near_W: np.ndarray) -> Axis |
 @dataclass(frozen=True, eq=False)
 class KnownTurns:
     """The angle (rad) the turntable reported in each pass, and its nominal axis (the cell
-    model's: vertical through the turntable's centre)."""
+    model's: vertical through the turntable's centre). `turned_passes`: how many passes, from
+    the first, only the turntable moved the object (None: all); from the first pass laid on
+    another face on, the object's pose is the person's, not a known turn."""
 
     angles_rad: tuple[float, ...]
     nominal: Axis
+    turned_passes: int | None = None
 
-    def start(self, hanging: int, verified: Sequence[tuple[int, np.ndarray]] = ()) -> np.ndarray:
+    def known(self, hanging: int) -> bool:
+        """Whether pass `hanging` stands where a known turn put it."""
+        return self.turned_passes is None or hanging < self.turned_passes
+
+    def start(
+        self, hanging: int, verified: Sequence[tuple[int, np.ndarray]] = ()
+    ) -> np.ndarray | None:
         """The guess of pass `hanging`'s transform onto pass 0, about the axis calibrated from
-        the `verified` alignments so far ((pass, T) pairs), else the nominal axis."""
+        the `verified` alignments so far ((pass, T) pairs), else the nominal axis; None for a
+        pass laid anew (or after one): no turn is known."""
+        if not self.known(hanging):
+            return None
         axis = self.calibrated(verified)
         turned = self.angles_rad[hanging] - self.angles_rad[0]
         return turn_about_axis(axis.p_W, axis.u_W, -turned)
@@ -77,7 +89,7 @@ class KnownTurns:
     def calibrated(self, verified: Sequence[tuple[int, np.ndarray]] = ()) -> Axis:
         """The axis from the verified alignments (nominal where they cannot tell), its
         direction in the sense of the nominal one."""
-        found = axis_from_turns([T for _, T in verified], self.nominal.p_W)
+        found = axis_from_turns([T for h, T in verified if self.known(h)], self.nominal.p_W)
         if found is None:
             return self.nominal
         u = found.u_W if found.u_W @ self.nominal.u_W >= 0 else -found.u_W

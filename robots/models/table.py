@@ -1,11 +1,11 @@
 """The support table of the cell: a small square top on a square leg, where the object lies.
 
-Its top is where the turntable's disc is: half the object's size below the object's centre, so
-an object of the configured size lying on it fits inside the viewpoints' sphere as a hung one
-does. The top is small (half the object's size a side): the arm scans from below, and a wide
-top would hide the object's whole underside, not only the face it lies on; an object lies
-stably on it as long as its centre of mass is over the top, which the person laying it (and
-the simulated one) sees to. Its geometry is collision geometry of the world, so the planner
+Its top is where the turntable's disc is: half the object's size below the object's centre,
+which a table's scan places above the cell's `support_top_m` (scanner/scan/layout.py: low and
+in front of the arm, which sees the object from above and around). The top is small (half the
+object's size a side): it hides little more than the face the object lies on, and an object
+lies stably on it as long as its centre of mass is over the top, which the person laying it
+(and the simulated one) sees to. Its geometry is collision geometry of the world, so the planner
 avoids it and the cell filter removes its points like the rod's.
 """
 

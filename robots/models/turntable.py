@@ -1,11 +1,13 @@
 """The motorised turntable of the cell: a disc on a post under the object, turning about the
 vertical through the scan centre.
 
-Its top is where the object stands: half the object's size below the object's centre, so an
-object of the configured size fits between the disc and the viewpoints' centre. The disc is
-small (a fifth of the object's size in radius): the arm scans from below, and the disc hides
-only the object's footprint. Its geometry is registered as collision geometry of the world, so
-the planner avoids it and the cell filter removes its points like the rod's.
+Its top is where the object stands: half the object's size below the object's centre, which a
+turntable's scan places above the cell's `support_top_m` (scanner/scan/layout.py: low and in
+front of the arm, which sees the object from above and around). The object put on it settles
+on the face of its hull underneath (robots/simulation/laying.py), as on the table. The disc is
+small (a fifth of the object's size in radius): it hides only the object's footprint. Its
+geometry is registered as collision geometry of the world, so the planner avoids it and the
+cell filter removes its points like the rod's.
 """
 
 from __future__ import annotations
@@ -43,20 +45,6 @@ def turntable_geometry(cell) -> TurntableGeometry:
     return TurntableGeometry(
         (cx, cy, top), DISC_RADIUS_FRACTION * cell.object_size_m, DISC_THICKNESS_M, POST_RADIUS_M
     )
-
-
-def standing_pose(cell, vertices_O: np.ndarray) -> np.ndarray:
-    """The object's pose X_WO at the turntable's zero angle: the configured orientation, its
-    centre on the axis, resting on the disc: its lowest point over the disc touches the disc's
-    top (parts beyond the disc's rim may hang lower, as a figure's arm overhangs a plinth)."""
-    X = cell.X_WO
-    g = turntable_geometry(cell)
-    p_top = np.array(g.p_top_W)
-    v = vertices_O @ X[:3, :3].T
-    over_disc = np.linalg.norm(v[:, :2], axis=1) <= g.disc_radius_m
-    lowest = float(v[over_disc, 2].min() if over_disc.any() else v[:, 2].min())
-    X[:3, 3] = [p_top[0], p_top[1], p_top[2] - lowest]
-    return X
 
 
 def add_turntable(plant, cell) -> None:

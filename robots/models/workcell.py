@@ -83,6 +83,16 @@ class WorkcellConfig:
     # from the arm's reach before the cell is built (planners/reach.py; a scan of an arm file
     # whose configuration names no centre).
     object_center_m: tuple[float, float, float] | None = (0.40, 0.0, 1.00)
+    # Where a table's or turntable's top (the centre of its upper face) stands: the object on
+    # it is seen from above and around, not from below as where it hangs. Measured with
+    # planners/reach.py's `sphere_share` (96 directions of elevation -10..85 deg, 12 rolls, the
+    # carrier in the planner's view): centres 0.6-0.8 m in front of the base and 0.13-0.25 m
+    # up reach 8-18 % of that band; at (0.70, 0, 0.15) for a 0.2 m object the views reach
+    # elevations 7-63 deg on the side facing the robot (13 % of the band). Nearer, the
+    # cameras on that side stand in the arm's own column; farther or higher, the views from
+    # above are out of its reach (0.67 m from the shoulder). None: the object centre as
+    # configured (or laid out from the arm's reach), as for a hanging.
+    support_top_m: tuple[float, float, float] | None = (0.70, 0.0, 0.05)
     object_size_m: float = 0.2
     object_yaw_rad: float = 0.0
     rod_radius_m: float = 0.004
@@ -93,6 +103,12 @@ class WorkcellConfig:
         c = self.object_center_m
         if c is not None and (len(c) != 3 or not all(math.isfinite(v) for v in c)):
             raise ScannerError(f"object_center_m: expected three finite numbers, got {c}")
+        t = self.support_top_m
+        if t is not None and (len(t) != 3 or not all(math.isfinite(v) for v in t) or t[2] <= 0):
+            raise ScannerError(
+                f"support_top_m: expected three finite numbers, the height above the table "
+                f"top (z = 0) positive, got {t}"
+            )
         if not (math.isfinite(self.object_size_m) and 0 < self.object_size_m <= MAX_OBJECT_SIZE_M):
             raise ScannerError(
                 f"object_size_m: expected a size in metres in (0, 1], got {self.object_size_m}"
@@ -109,6 +125,14 @@ class WorkcellConfig:
             raise ScannerError(
                 f"rod_top_z_m: expected above the object centre ({c[2]} m), got {self.rod_top_z_m}"
             )
+
+    def presented_center_m(self, presentation: str) -> tuple[float, float, float] | None:
+        """Where the object's centre is when `presentation` holds it: hanging from the rod at
+        `object_center_m`; on a table or turntable, half its size above the support's top."""
+        if presentation == "hanging" or self.support_top_m is None:
+            return self.object_center_m
+        x, y, z = self.support_top_m
+        return (x, y, z + self.object_size_m / 2)
 
     @property
     def X_WO(self) -> np.ndarray:

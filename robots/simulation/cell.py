@@ -16,7 +16,6 @@ from robots.cache import cache_dir
 from robots.drivers.interfaces import RobotDriver
 from robots.models import camera_tool
 from robots.models.objects import ObjectMesh, mesh_fingerprint, resolve_object, write_textured_obj
-from robots.models.turntable import standing_pose
 from robots.models.workcell import Workcell, WorkcellConfig, build_workcell, placed_object
 from robots.simulation.operator import hung_pose, rehung_pose
 from robots.simulation.robot import SimulatedRobot
@@ -71,8 +70,8 @@ def create_simulation(
     `build_workcell` (e.g. a calibration board). `rgbd`: the tool carries this depth camera
     (X_FC_nominal then places its colour camera) instead of the stereo pair. `arm` starts at
     `q0` (None: its home). `presentation`: the object hangs from the rod ("hanging"), stands
-    on the turntable ("turntable", at its zero angle unless `X_WO` is given) or lies on the
-    table ("table", on the face underneath as configured unless `X_WO` is given).
+    on the turntable ("turntable", at its zero angle) or lies on the table ("table"), settled on
+    the face underneath as configured unless `X_WO` is given.
     `device(workcell, truth, true_joint_positions)`: the tool's simulated camera (a sensor
     kind's, robots.sensors; None: the stereo pair, or the depth camera with `rgbd`).
     """
@@ -80,11 +79,10 @@ def create_simulation(
     if X_FC_nominal is None:
         X_FC_nominal = camera_tool.nominal_X_FC(stereo.baseline_m)
     mesh = None if object_spec is None else resolve_object(object_spec, cell.object_size_m)
-    if X_WO is None and presentation == "turntable" and mesh is not None:
-        X_WO = standing_pose(cell, mesh.vertices)
-    if X_WO is None and presentation == "table" and mesh is not None:
+    if X_WO is None and presentation != "hanging" and mesh is not None:
         from robots.simulation.laying import first_lying_pose
 
+        # Put down on a table or a turntable's disc, it settles on the face underneath.
         X_WO = first_lying_pose(cell, mesh)
     if X_WO is None:  # else the pose the operator hung it in (a resumed scan's truth file)
         X_WO = hung_pose(cell.X_WO, error_model.seed, hanging)

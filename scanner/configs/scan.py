@@ -59,6 +59,11 @@ class ProcessingConfig:
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     # Points closer than this to the robot, tool, rod or cell primitives are removed.
     remove_margin_m: float = non_negative(0.01)
+    # On a table or turntable, points less than this above its top (in each pass's own frame)
+    # are removed: the top, its leg, the cell's table under it, and the stereo's wrong matches
+    # on their plain faces, which land centimetres off them (beyond remove_margin_m) but below
+    # the top. Small: the object's lowest millimetres go with them (other passes show them).
+    support_margin_m: float = non_negative(0.003)
     # The surface whose metrics are the report's headline keys.
     primary_surface: str = "poisson"
     mesh_formats: tuple[str, ...] = (".ply",)
@@ -204,8 +209,12 @@ def scan_config_from_dict(data: dict, where: str) -> ScanConfig:
     object_center_m hangs the object where the arm reaches most of the viewpoint sphere (left
     None here, laid out by scanner.scan.layout); the RX60's keeps its measured cell."""
     config = from_dict(ScanConfig, data, where)
-    if config.robot != "rx60" and "object_center_m" not in (data.get("cell") or {}):
+    cell = data.get("cell") or {}
+    if config.robot != "rx60" and "object_center_m" not in cell:
         config = replace(config, cell=replace(config.cell, object_center_m=None))
+    if config.robot != "rx60" and "support_top_m" not in cell:
+        # The RX60's support place is not another arm's: its object stands where it hangs.
+        config = replace(config, cell=replace(config.cell, support_top_m=None))
     return config
 
 
@@ -280,6 +289,8 @@ def with_overrides(
         if robot != "rx60" and config.cell.object_center_m == WorkcellConfig().object_center_m:
             # The RX60's cell, not one chosen for this arm: laid out from its reach instead.
             config = replace(config, cell=replace(config.cell, object_center_m=None))
+        if robot != "rx60" and config.cell.support_top_m == WorkcellConfig().support_top_m:
+            config = replace(config, cell=replace(config.cell, support_top_m=None))
     if driver is not None:
         check_driver(driver, "--driver")
         config = replace(config, driver=driver)

@@ -19,6 +19,7 @@ from reconstruction.evaluation.metrics import (
     visible_mask,
 )
 from reconstruction.evaluation.observable import observable_mask, working_distance_m
+from reconstruction.evaluation.support import SupportPlane
 from reconstruction.hangings.alignment import alignment_error
 from reconstruction.pipeline import ReconstructionResult
 from reconstruction.surfaces.fixture import points_on_fixture
@@ -50,6 +51,21 @@ def _true_eyes(
     return eyes
 
 
+def _true_supports(
+    views: Gathered, to_first: list[np.ndarray], indices
+) -> list[SupportPlane | None] | None:
+    """Per view (capture indices `indices`), the top of its pass's support in the first
+    hanging's frame; None when no pass stood on one."""
+    if not any(s is not None for s in views.supports):
+        return None
+    hanging_of = {i: h for h, group in enumerate(views.hangings) for i in group}
+    out = []
+    for i in indices:
+        support = views.supports[hanging_of[i]]
+        out.append(None if support is None else support.moved(to_first[hanging_of[i]]))
+    return out
+
+
 def _object_poses(truth) -> list[np.ndarray]:
     """The object's true pose in each hanging of one scan."""
     raw = truth[2]
@@ -67,9 +83,11 @@ def to_first_hanging(views: Gathered) -> list[np.ndarray] | None:
     return [poses[0] @ invert(X) for X in poses]
 
 
-def _pass_observed(surface, eyes: list[np.ndarray]) -> float:
-    """The share of the true surface one hanging's (true) views saw."""
-    return float(visible_mask(sample_surface(surface, 50_000), surface, eyes).mean())
+def _pass_observed(surface, eyes: list[np.ndarray], supports=None) -> float:
+    """The share of the true surface one hanging's (true) views saw (`supports`: per view, the
+    top its object stood on, which hides what lies on it)."""
+    samples = sample_surface(surface, 50_000)
+    return float(visible_mask(samples, surface, eyes, supports=supports).mean())
 
 
 def hangings_report(result, views: Gathered, to_first) -> dict:
@@ -91,7 +109,11 @@ def hangings_report(result, views: Gathered, to_first) -> dict:
             "coverage_estimate": result.hanging_coverage[h].fraction,
         }
         if surface is not None:
-            record["observed_fraction"] = _pass_observed(surface, [true_eyes[i] for i in indices])
+            record["observed_fraction"] = _pass_observed(
+                surface,
+                [true_eyes[i] for i in indices],
+                _true_supports(views, to_first, indices),
+            )
         a = next((a for a in result.alignments if a.hanging == h), None)
         if a is not None:
             record.update(
@@ -153,8 +175,11 @@ def evaluate(
 def observed_samples(views: Gathered, processing: ProcessingConfig, to_first, left_out=()):
     """Samples of the first scan's true surface and which of them the true views saw (not
     those of the hangings `left_out` of the model)."""
-    eyes = list(_true_eyes(views, to_first, left_out).values())
-    return truth_sampling(views.truths[0][1], eyes, processing.metric_samples)
+    true_eyes = _true_eyes(views, to_first, left_out)
+    supports = _true_supports(views, to_first, list(true_eyes))
+    return truth_sampling(
+        views.truths[0][1], list(true_eyes.values()), processing.metric_samples, supports=supports
+    )
 
 
 def observable_samples(views: Gathered, to_first, truth_samples, left_out=()) -> np.ndarray | None:

@@ -15,6 +15,7 @@ import numpy as np
 from reconstruction.common.errors import ScannerError
 from reconstruction.depth.camera_model import CameraModel
 from reconstruction.evaluation.metrics import TriangleSurface
+from reconstruction.evaluation.support import SupportPlane
 from reconstruction.pipeline import ReconstructionConfig
 from reconstruction.registration.filtering import VIEW_THREADS, filter_views
 from reconstruction.registration.views import ViewCloud
@@ -143,8 +144,18 @@ def load_truth_of(scan_dir: Path):
 
 
 def geometry_filter(
-    config: ScanConfig, X_FC: np.ndarray, stereo: CameraModel, joints: dict, margin_m: float
+    config: ScanConfig,
+    X_FC: np.ndarray,
+    stereo: CameraModel,
+    joints: dict,
+    margin_m: float,
+    support_margin_m: float | None = None,
 ):
+    """remove_points(points_W, index) of the scan's cell: points within `margin_m` of the
+    robot, its tool and the cell's geometry at the view's joints, and on a table or turntable
+    every point less than `support_margin_m` (default: the scan's `processing`) above its top.
+    A pass's points are in its own frame here (the pipeline takes them back there), where the
+    support stands."""
     from robots.arms.default import arm_of
     from robots.models.point_filter import make_geometry_filter
     from robots.models.workcell import build_workcell
@@ -158,7 +169,13 @@ def geometry_filter(
         presentation=config.presentation,
     )
     keep = make_geometry_filter(cell, margin_m)
-    return lambda points_W, index: keep(points_W, joints[index])
+    support = support_plane(config)
+    if support is None:
+        return lambda points_W, index: keep(points_W, joints[index])
+    above_m = config.processing.support_margin_m if support_margin_m is None else support_margin_m
+    return lambda points_W, index: (  # noqa: E731
+        keep(points_W, joints[index]) & support.exposed(points_W, above_m)
+    )
 
 
 def fixture_line(config: ScanConfig) -> FixtureLine:
@@ -175,6 +192,18 @@ def fixture_line(config: ScanConfig) -> FixtureLine:
 
         return FixtureLine(tuple(cell.object_center_m), (0.0, 0.0, -1.0), LEG_SIDE_M / 2**0.5)
     return FixtureLine(tuple(cell.object_center_m), (0.0, 0.0, 1.0), cell.rod_radius_m)
+
+
+def support_plane(config: ScanConfig) -> SupportPlane | None:
+    """The top of what holds the object from below in each pass (the table's top, the
+    turntable's disc; fixed in the cell, so in each pass's own frame the same), None for a
+    hanging: the views see nothing on or below it."""
+    if config.presentation == "hanging":
+        return None
+    from robots.models.turntable import turntable_geometry
+
+    # The table's top and the disc's stand at the same place (robots/models).
+    return SupportPlane(np.array(turntable_geometry(config.cell).p_top_W), np.array([0, 0, 1.0]))
 
 
 def with_roi_centre(config: ReconstructionConfig, centre: np.ndarray) -> ReconstructionConfig:
@@ -201,6 +230,8 @@ class Gathered:
     truths: list  # per scan: (Truth, true surface, truth file) or None
     remove: object  # remove_points(points_W, index) for all scans
     fixtures: list[FixtureLine] = field(default_factory=list)  # per hanging, its rod's line
+    # Per hanging, the top of its support in its own frame (None: it hung).
+    supports: list[SupportPlane | None] = field(default_factory=list)
     robots: list[str] = field(default_factory=list)  # per scan, its configuration's arm
 
 
@@ -234,11 +265,19 @@ def gather_views(
         out.joints.update({i + offset: q for i, q in captured.joints.items()})
         out.hangings.extend([i + offset for i in h] for h in scan.hangings)
         out.fixtures.extend(fixture_line(scan.config) for _ in scan.hangings)
+        out.supports.extend(support_plane(scan.config) for _ in scan.hangings)
         out.scan_of.update({v.index + offset: k for v in captured.views})
         out.truths.append(load_truth_of(scan.root))
         out.robots.append(scan.config.robot)
         filters.append(
-            geometry_filter(scan.config, X, camera, captured.joints, processing.remove_margin_m)
+            geometry_filter(
+                scan.config,
+                X,
+                camera,
+                captured.joints,
+                processing.remove_margin_m,
+                processing.support_margin_m,
+            )
         )
     remove = lambda points_W, index: filters[index // INDEX_STRIDE](  # noqa: E731
         points_W, index % INDEX_STRIDE
@@ -254,7 +293,14 @@ def model_so_far(
     processing = scan.config.processing
     config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
     captured = capture_views(scan, prepare_sensor(scan, stereo), X_FC, processing.stereo, indices)
-    remove = geometry_filter(scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m)
+    remove = geometry_filter(
+        scan.config,
+        X_FC,
+        stereo,
+        captured.joints,
+        processing.remove_margin_m,
+        processing.support_margin_m,
+    )
     views, clouds, _ = filter_views(captured.views, X_FC, config.filter, remove)
     X_WC = [v.X_WF @ X_FC for v in views]
     fused = fuse_clouds(clouds, X_WC, config.surfaces.fused_voxel_size_m)

@@ -286,6 +286,7 @@ def _reconstruct(
             filtered=filtered,
             eyes_of=eyes_of,
             fixtures=views.fixtures,
+            supports=views.supports,
             arriving=arriving,
             leave_out_unaligned=len(scans) == 1,
             turns=known_turns(first) if hangings and len(scans) == 1 else None,

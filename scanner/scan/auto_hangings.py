@@ -32,6 +32,7 @@ from scanner.reconstruct.scan_views import (
     fixture_line,
     geometry_filter,
     prepare_sensor,
+    support_plane,
     with_roi_centre,
 )
 from scanner.reconstruct.view_stream import ViewStream
@@ -137,13 +138,16 @@ class HangingAssessor:
                 self.passes[h] = self._quick([i for i in hangings[h] if i in captured])
             if h not in self.T:
                 self._align(h)
-        points, normals, colors, eyes = [], [], [], []
+        points, normals, colors, eyes, supports = [], [], [], [], []
+        support = support_plane(self.scan.config)
         for h in range(hanging + 1):
             T, q = self.T[h], self.passes[h]
             points.append(transform_points(T, q.fused.points_W))
             normals.append(rotate_vectors(T, q.fused.normals_W))
             colors.append(q.fused.colors)
             eyes += [transform_points(T, e) for e in q.eyes]
+            # Each pass's support, where the pass put it: what lay on it was not seen.
+            supports += [None if support is None else support.moved(T)] * len(q.eyes)
         voxel = self.scan.config.processing.reconstruction.surfaces.fused_voxel_size_m
         pc = o3d_cloud(np.vstack(points), np.vstack(normals), np.vstack(colors)).voxel_down_sample(
             voxel
@@ -154,7 +158,7 @@ class HangingAssessor:
             np.clip(np.round(np.asarray(pc.colors) * 255), 0, 255).astype(np.uint8),
             n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12),
         )
-        seen = seen_surface(merged, eyes, SAMPLES)
+        seen = seen_surface(merged, eyes, SAMPLES, supports=supports)
         return Assessment(
             seen.fraction, _moved(seen, invert(self.T[hanging])), self.failures[hanging]
         )

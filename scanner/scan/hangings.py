@@ -147,7 +147,11 @@ class HangingRunner:
             captured = set(self.store.captured_indices())
             assessment = self.assessor.assess(self.hangings, hanging, captured)
         coverage = [entry["coverage_after"] for entry in journal] + [assessment.fraction]
-        decision = decide(self.config, coverage, assessment.failures)
+        limit = self.presentation.max_passes
+        config = self.config
+        if limit is not None and limit < config.max_hangings:
+            config = dataclasses.replace(config, max_hangings=limit)
+        decision = decide(config, coverage, assessment.failures)
         entry = {
             "hanging": hanging + 1,
             "coverage_before": coverage[-2] if len(coverage) > 1 else 0.0,

@@ -1,6 +1,7 @@
 """The scan's cell laid out for its arm: where the object hangs when the configuration does not
 say (an arm file's scan without `cell.object_center_m`), chosen by planners/reach.py from the
-arm's reach at the views' radius and cached per arm and radius (robots/cache.py).
+arm's reach at the views' radius and cached per arm and radius (robots/cache.py); and where it
+stands when a table or turntable presents it (`presented`).
 
 The RX60's default cell is its own measured layout and is never searched again, so its scans
 stay as they were.
@@ -16,6 +17,7 @@ from dataclasses import replace
 import numpy as np
 
 from planners.reach import CellReach, ReachSettings, best_center
+from reconstruction.common.errors import ScannerError
 from robots.arms.default import arm_of
 from robots.cache import cache_dir
 from scanner.configs.scan import ScanConfig
@@ -33,9 +35,36 @@ def reach_settings(config: ScanConfig) -> ReachSettings:
     )
 
 
+# A support's top hides what lies below its plane: views from under it see the carrier.
+SUPPORT_MIN_ELEVATION_RAD = 0.0
+
+
+def presented(config: ScanConfig) -> ScanConfig:
+    """`config` with the object where its presentation holds it: a hanging where the cell
+    hangs it; on a table or turntable on the support (`cell.support_top_m`, seen from above
+    and around), its views in the elevation band above the support's top."""
+    cell = config.cell
+    centre = cell.presented_center_m(config.presentation)
+    if centre == cell.object_center_m:
+        return config
+    views = config.views
+    low = max(views.elevation_min_rad, SUPPORT_MIN_ELEVATION_RAD)
+    if low >= views.elevation_max_rad:
+        raise ScannerError(
+            f"views.elevation_max_rad: a {config.presentation} is seen from above its top "
+            f"(elevation > 0), got a band up to {views.elevation_max_rad!r} rad"
+        )
+    return replace(
+        config,
+        cell=replace(cell, object_center_m=centre),
+        views=replace(views, elevation_min_rad=low),
+    )
+
+
 def laid_out(config: ScanConfig, settings: ReachSettings | None = None) -> ScanConfig:
-    """`config` with its object centre: the configured one, else the best of the arm's reach
-    (`cell_reach`)."""
+    """`config` with its object centre: where its presentation holds it (`presented`), the
+    configured one, else the best of the arm's reach (`cell_reach`)."""
+    config = presented(config)
     if config.cell.object_center_m is not None:
         return config
     reach = cell_reach(config, settings or reach_settings(config))

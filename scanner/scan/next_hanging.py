@@ -22,6 +22,7 @@ from reconstruction.common.sphere import fibonacci_directions
 from reconstruction.common.transforms import rotation_about, rotation_between
 from reconstruction.evaluation.coverage import SeenSurface
 from reconstruction.evaluation.metrics import SurfaceSamples, visibility
+from reconstruction.evaluation.support import SupportPlane
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -51,18 +52,27 @@ class UnseenSight:
     grid: np.ndarray
     sees: np.ndarray
     total: int
+    points: np.ndarray | None = None  # (unseen, 3): the unseen samples, where they are now
 
-    def gain(self, view_directions: np.ndarray, R: np.ndarray) -> float:
+    def gain(
+        self, view_directions: np.ndarray, R: np.ndarray, support: SupportPlane | None = None
+    ) -> float:
         """The share of the model newly seen by a pass of these view directions (unit, from
         the centre) after the object turned by R (3x3) about the centre; the cameras are looked
         up at their nearest grid direction (8 deg apart at most, finer than the operator's own
-        error)."""
-        return float(self.seen_by(view_directions, R).sum() / self.total)
+        error). `support`: the top the object will lie on in that pass (in the frame of the
+        object now), which hides what lies on it."""
+        return float(self.seen_by(view_directions, R, support).sum() / self.total)
 
-    def seen_by(self, view_directions: np.ndarray, R: np.ndarray) -> np.ndarray:
+    def seen_by(
+        self, view_directions: np.ndarray, R: np.ndarray, support: SupportPlane | None = None
+    ) -> np.ndarray:
         """Which unseen samples (bool per sample) those cameras would see."""
         nearest = np.argmax((view_directions @ R) @ self.grid.T, axis=1)  # rows: R^T d
-        return self.sees[nearest].any(axis=0)
+        seen = self.sees[nearest].any(axis=0)
+        if support is not None and self.points is not None:
+            seen &= support.exposed(self.points)
+        return seen
 
 
 def unseen_sight(
@@ -77,7 +87,7 @@ def unseen_sight(
     subset = SurfaceSamples(seen.samples.points[unseen], seen.samples.normals[unseen])
     grid = fibonacci_directions(GRID)
     sees = np.array(list(visibility(subset, seen.surface, c + radius_m * grid)))
-    return UnseenSight(grid, sees, len(seen.seen))
+    return UnseenSight(grid, sees, len(seen.seen), subset.points)
 
 
 def next_best_hanging(

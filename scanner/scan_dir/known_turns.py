@@ -17,12 +17,19 @@ def known_turns(scan: SavedScan, passes: int | None = None) -> KnownTurns | None
     """None unless the scan stood on a turntable and recorded an angle for each of its first
     `passes` passes (None: all of them; the manifest read now, as a scan in progress writes
     it)."""
-    angles = scan.store.read_manifest().get("turntable_angles_rad", [])
+    manifest = scan.store.read_manifest()
+    angles = manifest.get("turntable_angles_rad", [])
     passes = len(scan.hangings) if passes is None else passes
     if scan.config.presentation != "turntable" or len(angles) < passes:
         return None
     g = turntable_geometry(scan.config.cell)
-    return KnownTurns(tuple(float(a) for a in angles), Axis(np.array(g.p_top_W), g.u_W))
+    # Passes laid on another face (scan/presentation/turntable.py) end the known turns.
+    laid = [int(p) for p in manifest.get("turntable_laid_passes", {})]
+    return KnownTurns(
+        tuple(float(a) for a in angles),
+        Axis(np.array(g.p_top_W), g.u_W),
+        min(laid) if laid else None,
+    )
 
 
 def true_turntable_axis(scan: SavedScan, truth) -> Axis | None:
@@ -39,10 +46,11 @@ def turntable_report(turns: KnownTurns, alignments, truth: Axis | None = None) -
     turns calibrate (its offset and tilt from the cell model's; with the simulator's `truth`,
     from the true axis too)."""
     axis = turns.calibrated(verified_turns(alignments))
+    turned = [a for a in alignments if turns.known(a.hanging)]
     out = {
         "angles_deg": [math.degrees(a) for a in turns.angles_rad],
         "known_turn_verified": [a.from_known_turn for a in alignments],
-        "axis_calibrated": bool(verified_turns(alignments)),
+        "axis_calibrated": bool(verified_turns(turned)),
     }
     offset_m, tilt_rad = _apart(axis, turns.nominal)
     out.update(axis_offset_mm=1e3 * offset_m, axis_tilt_deg=math.degrees(tilt_rad))

@@ -17,6 +17,8 @@ class Presentation(abc.ABC):
     passes; this says how the object gets from one pass to the next)."""
 
     kind: str
+    # The most passes this presentation makes (None: the configuration's max_hangings).
+    max_passes: int | None = None
 
     def __init__(self, config: ScanConfig, store: CaptureStore) -> None:
         self.config, self.store = config, store

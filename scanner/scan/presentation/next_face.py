@@ -7,7 +7,8 @@ smallest turn that takes n down, then by a yaw nobody controls; for the cameras 
 them by R^T about the centre, and a candidate's gain is the share of the closed model's unseen
 samples the pass's cameras would see after it, averaged over yaws. Unlike a hanging, only the
 faces the model can rest on are candidates: its hull's faces that hold its centre of mass
-(reconstruction/hangings/resting_poses.py), computed on the closed model so far.
+(reconstruction/hangings/resting_poses.py), computed on the closed model so far; and the face
+laid down is hidden from that pass by the support it lies on, whatever the views.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 
 from reconstruction.common.transforms import rotation_about
 from reconstruction.evaluation.coverage import SeenSurface
+from reconstruction.evaluation.support import SupportPlane
 from reconstruction.hangings.resting_poses import centre_of_mass, resting_poses
 from scanner.scan.next_hanging import UP, YAWS, side_name, unseen_sight
 
@@ -58,20 +60,32 @@ def next_best_face(
     if sight is None:
         return None
     v, t = seen.surface.vertices, seen.surface.triangles
-    poses = resting_poses(v, centre_of_mass(v, t), MIN_MARGIN_M)
+    com = centre_of_mass(v, t)
+    poses = [p for p in resting_poses(v, com, MIN_MARGIN_M) if not _lies_on(p)]
+    if not poses:
+        # A round object's hull is slivers, none holding it 5 mm inside its edges (the teapot
+        # on its side): the most probable faces still say which side to put down, and it
+        # rolls onto the stable one nearest.
+        poses = [p for p in resting_poses(v, com) if not _lies_on(p)]
     d = np.asarray(view_directions, float).reshape(-1, 3)
     best: FaceChoice | None = None
     for pose in poses[:MAX_FACES]:
-        if pose.down_O @ -UP > math.cos(SAME_FACE_RAD):
-            continue
         R = pose.R_TO()
+        # The face laid down touches the support: hidden from the pass, whatever it faces.
+        support = SupportPlane(pose.centre_O, -pose.down_O)
         gain = sum(
-            sight.gain(d, rotation_about(UP, 2 * math.pi * j / yaws) @ R) for j in range(yaws)
+            sight.gain(d, rotation_about(UP, 2 * math.pi * j / yaws) @ R, support)
+            for j in range(yaws)
         )
         gain /= yaws
         if best is None or gain > best.gain:
             best = FaceChoice(pose.down_O.copy(), pose.centre_O.copy(), gain, pose.probability)
     return best
+
+
+def _lies_on(pose) -> bool:
+    """Whether the object lies on that face now."""
+    return bool(pose.down_O @ -UP > math.cos(SAME_FACE_RAD))
 
 
 def turn_deg(down_W: np.ndarray) -> float:
@@ -85,13 +99,15 @@ def face_words(down_W: np.ndarray) -> str:
     return f"the side now facing {side_name(a)} (direction {a[0]:+.2f} {a[1]:+.2f} {a[2]:+.2f})"
 
 
-def lay_instruction(choice: FaceChoice, index: int, picture: str | None) -> str:
-    """What the person is told for pass `index` (0-based)."""
+def lay_instruction(
+    choice: FaceChoice, index: int, picture: str | None, support: str = "table"
+) -> str:
+    """What the person is told for pass `index` (0-based), laying it on the `support`."""
     p = choice.touch_W
     seen_in = f" (see {picture})" if picture else ""
     return (
         f"pass {index + 1}: turn the object by about {turn_deg(choice.down_W):.0f} deg and lay "
-        f"it on the table on {face_words(choice.down_W)}: the point now at x {p[0]:.3f}, "
-        f"y {p[1]:.3f}, z {p[2]:.3f} m touches the table; put it down in the middle of the "
-        f"table, at any turn about the vertical{seen_in}; then confirm"
+        f"it on the {support} on {face_words(choice.down_W)}: the point now at x {p[0]:.3f}, "
+        f"y {p[1]:.3f}, z {p[2]:.3f} m touches the {support}; put it down in the middle of the "
+        f"{support}, at any turn about the vertical{seen_in}; then confirm"
     )

@@ -18,6 +18,7 @@ import numpy as np
 
 from reconstruction.common.transforms import rotation_about
 from reconstruction.evaluation.coverage import SeenSurface
+from reconstruction.evaluation.support import SupportPlane
 from scanner.scan.next_hanging import UP, unseen_sight
 
 # Candidate turns, 15 deg apart: finer steps change the gain by less than the grid of sight
@@ -48,10 +49,13 @@ def next_best_turn(
     view_directions: np.ndarray,
     used_turns_rad: Sequence[float] = (0.0,),
     candidates: int = CANDIDATES,
+    support: SupportPlane | None = None,
 ) -> TurnChoice | None:
     """The turn (from now) whose pass (the same view directions, unit, from the centre) newly
     sees the most of `seen`'s unseen samples, away from the turns passes already used
-    (`used_turns_rad`, from now: 0 is the pass now); None when nothing is unseen."""
+    (`used_turns_rad`, from now: 0 is the pass now); None when nothing is unseen. `support`:
+    the disc's top (frame of the pass now; a turn about the vertical keeps it where it is),
+    which hides what stands on it from every turn."""
     sight = unseen_sight(seen, centre_W, radius_m)
     if sight is None:
         return None
@@ -61,13 +65,14 @@ def next_best_turn(
     # would not, else a small turn scores the pass it repeats.
     made = np.zeros(len(sight.sees[0]), bool)
     for u in used_turns_rad:
-        made |= sight.seen_by(d, rotation_about(UP, u))
+        made |= sight.seen_by(d, rotation_about(UP, u), support)
     best: TurnChoice | None = None
     for k in range(1, candidates):
         turn = wrapped(2 * math.pi * k / candidates)
         if any(abs(wrapped(turn - u)) < MIN_SEPARATION_RAD for u in used_turns_rad):
             continue
-        gain = float((sight.seen_by(d, rotation_about(UP, turn)) & ~made).sum() / sight.total)
+        sees = sight.seen_by(d, rotation_about(UP, turn), support)
+        gain = float((sees & ~made).sum() / sight.total)
         if best is None or gain > best.gain:
             best = TurnChoice(turn, gain)
     return best

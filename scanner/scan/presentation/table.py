@@ -15,12 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from reconstruction.common.errors import ScannerError
 from reconstruction.evaluation.coverage import SeenSurface
-from robots.simulation.laying import laid_pose
-from scanner.reports.rehang_picture import write_rehang_picture
 from scanner.scan.presentation.base import Presentation
-from scanner.scan.presentation.next_face import face_words, lay_instruction, next_best_face
+from scanner.scan.presentation.laying import face_request, lay, quarter_turn
+from scanner.scan.presentation.next_face import next_best_face
 from scanner.scan.world import ScanWorld
 
 FACES_KEY = "table_faces"
@@ -43,27 +41,10 @@ class Table(Presentation):
         faces = self._faces()
         asked = faces.get(str(index)) if request is None else request
         if asked is None or "down_W" not in asked:
-            asked = _quarter_turn(index)
+            asked = quarter_turn(index)
         # Recorded before anything moves: a resume asks for the same face.
         self.store.update_manifest(**{FACES_KEY: {**faces, str(index): asked}})
-        if world.sim is not None:
-            X_WO = laid_pose(
-                self.config.cell,
-                world.sim.object_mesh,
-                world.sim.truth.X_WO,
-                np.asarray(asked["down_W"], float),
-                self.config.error_model.seed,
-                index,
-            )
-            return world.with_object_at(X_WO, viewer)
-        if world.hardware is None or world.hardware.request_rehang is None:
-            raise ScannerError(
-                "this driver cannot ask for the object to be laid on another face "
-                "(Hardware.request_rehang is None): scan one pass per run (hangings: 1) and "
-                "combine the scans with scanner merge"
-            )
-        world.hardware.request_rehang(asked["words"])
-        return world
+        return lay(self.config, world, index, asked, viewer)
 
     def plan(self, index: int, seen: SeenSurface, view_directions: np.ndarray) -> dict | None:
         """The next-best face to lay the object on, in words and a picture."""
@@ -71,24 +52,7 @@ class Table(Presentation):
         choice = next_best_face(seen, centre, self.config.views.radius_m, view_directions)
         if choice is None or choice.gain <= 0:
             return None
-        # Beside the captures, not in results/: a reconstruction writes that folder anew.
-        name = f"lay_{index + 1}.png"
-        heading = (
-            f"Pass {index + 1}: lay the object on the side the blue arrow points to (the green "
-            "star touches the table); red: not seen yet"
-        )
-        write_rehang_picture(
-            seen, choice.down_W, choice.touch_W, centre, index, self.store.root / name, heading
-        )
-        return {
-            "down_W": [float(x) for x in choice.down_W],
-            "touch_W": [float(x) for x in choice.touch_W],
-            "face": face_words(choice.down_W),
-            "face_probability": choice.probability,
-            "expected_gain": choice.gain,
-            "words": lay_instruction(choice, index, str(self.store.root / name)),
-            "picture": name,
-        }
+        return face_request(seen, choice, centre, index, self.store.root)
 
     def report(self, manifest: dict) -> dict:
         faces = manifest.get(FACES_KEY, {})
@@ -105,20 +69,3 @@ class Table(Presentation):
                 record["why"] = why.get(p, "-")
             passes.append(record)
         return {"kind": self.kind, "passes": passes}
-
-
-def _quarter_turn(index: int) -> dict:
-    """The request of a pass without a plan: the side facing the robot now goes underneath, a
-    quarter turn (two of them turn it upside down). Not half a turn at once: the cameras look
-    from below, so an object turned upside down shows the next pass only a thin band of what
-    the pass before saw, too little to align the passes on."""
-    towards_robot = np.array([-1.0, 0.0, 0.0])
-    return {
-        "down_W": [float(x) for x in towards_robot],
-        "face": face_words(towards_robot),
-        "words": (
-            f"pass {index + 1}: roll the object a quarter turn towards the robot and lay it on "
-            f"the table on {face_words(towards_robot)}, in the middle of the table, at any turn "
-            "about the vertical; then confirm"
-        ),
-    }
