@@ -11,9 +11,10 @@ scan: setup
 # model.html; `make scan` skips it. pytest exits 5 when no test was collected; that is not a
 # failure of the install. One worker per core (one more was measured: 505 s against 508 s, no
 # gain), a test file per worker (its module fixtures are built once; the scans several files
-# read are built once per run, see tests/conftest.py). The longest files first (LONGEST_FIRST there); a worker that crashes ends the run as failed (a
-# restarted worker once left the run waiting forever); the ten slowest tests are listed at the
-# end, so that a test that got slower shows.
+# read are built once per run, see tests/conftest.py), the longest files first (LONGEST_FIRST
+# there); a worker that crashes ends the run as failed (a restarted worker once left the run
+# waiting forever); the ten slowest tests are listed at the end, so that a test that got slower
+# shows.
 test:
 	@./scripts/setup_env.sh --tests
 	.venv/bin/python -m pytest -n auto --dist loadfile --no-loadscope-reorder --max-worker-restart=0 --durations=10; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
