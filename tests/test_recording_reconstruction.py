@@ -192,34 +192,49 @@ def depth_of_spheres(
     return np.where(np.isfinite(z), z, 0.0)
 
 
+def _depth_recording(
+    folder: Path, K: np.ndarray, size, X_FC_true, X_FC_given, X_WCs, spheres=BLOBS
+) -> Path:
+    """A plain recording in `folder` (flange poses, the given X_FC, 16-bit depth images of
+    `spheres` in 0.1 mm units beside random colour images), imported: the scan directory."""
+    import cv2
+    import yaml
+
+    from reconstruction.common.transforms import invert
+
+    folder.mkdir()
+    w, h = size
+    rng = np.random.default_rng(0)
+    views = []
+    for i, X_WC in enumerate(X_WCs):
+        z = depth_of_spheres(X_WC, K, (w, h), spheres)
+        cv2.imwrite(str(folder / f"d{i}.png"), np.round(z / 1e-4).astype(np.uint16))
+        cv2.imwrite(str(folder / f"i{i}.png"), rng.integers(0, 255, (h, w, 3), np.uint8))
+        X_WF = X_WC @ invert(X_FC_true)
+        views.append({"image": f"i{i}.png", "X_WF": X_WF.tolist(), "depth": f"d{i}.png"})
+    doc = {"unit_m": 1.0, "K": K.tolist(), "X_FC": X_FC_given.tolist(), "depth_unit_m": 1e-4}
+    (folder / "recording.yaml").write_text(yaml.safe_dump({**doc, "views": views}))
+    scan = folder.parent / "scan"
+    assert main(["import-recording", str(folder), "--out", str(scan)]) == 0
+    return scan
+
+
 def test_views_with_depth_images_go_through_the_depth_path(tmp_path, capfd):
     """A plain recording whose views carry 16-bit depth images of a known sphere (flange poses
     and X_FC, depth in 0.1 mm units): no pairs, every view its own depth cloud, and the model on
     the sphere."""
-    import cv2
-    import yaml
-
-    from reconstruction.common.transforms import invert, make_pose
+    from reconstruction.common.transforms import make_pose
     from tests.recording_files import look_at
 
     centre, radius, f, (w, h) = np.zeros(3), 0.1, 200.0, (240, 180)
     K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]])
     X_FC = make_pose(np.eye(3), (0.01, -0.02, 0.1))
-    folder = tmp_path / "sphere"
-    folder.mkdir()
-    rng = np.random.default_rng(0)
-    views = []
-    for i, a in enumerate(np.linspace(0, 2 * np.pi, 6, endpoint=False)):
-        X_WC = look_at((0.5 * np.cos(a), 0.5 * np.sin(a), 0.2))
-        z = depth_of_spheres(X_WC, K, (w, h), np.array([[*centre, radius]]))
-        cv2.imwrite(str(folder / f"d{i}.png"), np.round(z / 1e-4).astype(np.uint16))
-        cv2.imwrite(str(folder / f"i{i}.png"), rng.integers(0, 255, (h, w, 3), np.uint8))
-        X_WF = X_WC @ invert(X_FC)
-        views.append({"image": f"i{i}.png", "X_WF": X_WF.tolist(), "depth": f"d{i}.png"})
-    doc = {"unit_m": 1.0, "K": K.tolist(), "X_FC": X_FC.tolist(), "depth_unit_m": 1e-4}
-    (folder / "recording.yaml").write_text(yaml.safe_dump({**doc, "views": views}))
-    scan = tmp_path / "scan"
-    assert main(["import-recording", str(folder), "--out", str(scan)]) == 0
+    X_WCs = [
+        look_at((0.5 * np.cos(a), 0.5 * np.sin(a), 0.2))
+        for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)
+    ]
+    spheres = np.array([[*centre, radius]])
+    scan = _depth_recording(tmp_path / "sphere", K, (w, h), X_FC, X_FC, X_WCs, spheres)
     # A sphere does not hold a registration (it turns on itself): the depth path is what is
     # tested, with the poses as recorded.
     options = ReconstructOptions(out=tmp_path / "results", no_icp=True, no_handeye=True)
@@ -249,9 +264,8 @@ def blobs(tmp_path_factory) -> BlobsRecording:
     with depth images of BLOBS from 24 views around them (twelve fewer leave the correction
     unconverged: sigma 1.8 mm)."""
     import cv2
-    import yaml
 
-    from reconstruction.common.transforms import invert, make_pose
+    from reconstruction.common.transforms import make_pose
     from tests.recording_files import look_at
 
     tmp_path = tmp_path_factory.mktemp("blobs")
@@ -261,26 +275,17 @@ def blobs(tmp_path_factory) -> BlobsRecording:
     tilt = 1.0 * np.pi / 180 / np.sqrt(2)
     R_off = cv2.Rodrigues(np.array([tilt, -tilt, 0.0]))[0]
     X_FC_given = make_pose(R_off @ X_FC_true[:3, :3], X_FC_true[:3, 3] + (0.002, 0.002, -0.001))
-    folder = tmp_path / "recording"
-    folder.mkdir()
-    rng = np.random.default_rng(0)
-    views = []
     stations = [(a, 0.2) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)]
     stations += [(a + 0.26, -0.15) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)]
+    X_WCs = []
     for i, (a, height) in enumerate(stations):
         X_WC = look_at((0.45 * np.cos(a), 0.45 * np.sin(a), height))
         # Rolled about the optical axis by a different angle each: the flange turns about
         # more than one axis between views, which the hand-eye problem needs.
-        X_WC = X_WC @ make_pose(cv2.Rodrigues(np.array([0.0, 0.0, 0.13 * i - 1.5]))[0], (0, 0, 0))
-        z = depth_of_spheres(X_WC, K, (w, h))
-        cv2.imwrite(str(folder / f"d{i}.png"), np.round(z / 1e-4).astype(np.uint16))
-        cv2.imwrite(str(folder / f"i{i}.png"), rng.integers(0, 255, (h, w, 3), np.uint8))
-        X_WF = X_WC @ invert(X_FC_true)
-        views.append({"image": f"i{i}.png", "X_WF": X_WF.tolist(), "depth": f"d{i}.png"})
-    doc = {"unit_m": 1.0, "K": K.tolist(), "X_FC": X_FC_given.tolist(), "depth_unit_m": 1e-4}
-    (folder / "recording.yaml").write_text(yaml.safe_dump({**doc, "views": views}))
-    scan = tmp_path / "scan"
-    assert main(["import-recording", str(folder), "--out", str(scan)]) == 0
+        X_WCs.append(
+            X_WC @ make_pose(cv2.Rodrigues(np.array([0.0, 0.0, 0.13 * i - 1.5]))[0], (0, 0, 0))
+        )
+    scan = _depth_recording(tmp_path / "recording", K, (w, h), X_FC_true, X_FC_given, X_WCs)
     return BlobsRecording(scan, X_FC_true, X_FC_given)
 
 
