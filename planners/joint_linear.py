@@ -22,6 +22,11 @@ from robots.arms.arm import Arm
 from robots.drivers.interfaces import JointTrajectory
 
 
+# Samples per tolerance of joint travel at which chords are checked: the margin between samples
+# then costs (1 + sqrt(6)) / 32, about a tenth, of the tolerance for a 6-joint arm.
+CHORD_SAMPLES_PER_TOLERANCE = 32
+
+
 def chord_deviation_rad(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(K,) largest joint deviation of each of the (K, n) points q from the segment a-b."""
     d = b - a
@@ -35,14 +40,23 @@ def chord_waypoints(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Times (M,) and positions (M, n) on the trajectory, first its start and last its goal,
     such that the curve between consecutive ones stays within tolerance_rad (every joint) of
-    their chord: greedily, each chord reaches the farthest dense sample that keeps it so."""
-    times = dense_times(trajectory, max_joint_step_rad)
+    their chord: greedily, each chord reaches the farthest sample that keeps it so.
+
+    The deviation is measured at samples, and between two of them the curve can stray further
+    from the chord than at either: a point whose joints are within d of a sample's deviates at
+    most (1 + sqrt(n)) d more (the point's own offset, and its projection onto the chord
+    moving by at most sqrt(n) d). So the samples are taken with every joint moving at most
+    tolerance/CHORD_SAMPLES_PER_TOLERANCE between neighbours, and held to the tolerance less
+    that bound: the whole curve, not only its samples, stays within the tolerance."""
+    step = min(max_joint_step_rad, tolerance_rad / CHORD_SAMPLES_PER_TOLERANCE)
+    times = dense_times(trajectory, step)
     q = trajectory.samples(times)
+    tolerance_rad -= (1.0 + math.sqrt(q.shape[1])) * step
     keep, i, last = [0], 0, len(q) - 1
     while i < last:
         j = i + 1
         # Doubling then bisection: the deviation grows with the chord's length on a smooth
-        # curve; the final check below holds whatever the shape.
+        # curve; whatever the shape, the chord kept is one that was checked.
         step = 1
         while i + 2 * step <= last and _within(q, i, i + 2 * step, tolerance_rad):
             step *= 2
