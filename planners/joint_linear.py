@@ -21,7 +21,6 @@ from planners.validation import ValidationReport, dense_times
 from robots.arms.arm import Arm
 from robots.drivers.interfaces import JointTrajectory
 
-
 # Samples per tolerance of joint travel at which chords are checked: the margin between samples
 # then costs (1 + sqrt(6)) / 32, about a tenth, of the tolerance for a 6-joint arm.
 CHORD_SAMPLES_PER_TOLERANCE = 32
