@@ -234,6 +234,9 @@ class ReconstructionInputs:
         unverified) instead of refusing the whole result.
     turns: the passes' known turns (a turntable's angles and axis), the starting guess of
         each pass's alignment (None: the object was re-hung, the turn is unknown).
+    earlier_alignments: by hanging, its alignment found on these captures while they were
+        scanned (the quick model of `hangings: auto`): refined and verified again rather than
+        searched for anew.
     supports: per hanging, the top of what held the object from below in its own frame
         (None: it hung), which hides what lay on it from the coverage estimate's views."""
 
@@ -249,6 +252,7 @@ class ReconstructionInputs:
     leave_out_unaligned: bool = False
     turns: KnownTurns | None = None
     supports: Sequence[SupportPlane | None] = ()
+    earlier_alignments: Mapping[int, PassAlignment] | None = None
 
 
 def reconstruct_views(
@@ -355,6 +359,7 @@ def _place_hangings(
             inputs.remove_points,
             inputs.leave_out_unaligned,
             inputs.turns,
+            inputs.earlier_alignments,
         )
     return _Placed(clouds, placed)
 

@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -394,3 +395,43 @@ def test_a_scan_killed_in_its_second_hanging_resumes_there(two_hangings):
     # The views captured after the resume saw the object in its second hanging: the second
     # pass aligns with the first (test_a_two_hanging_scan_is_aligned... checks how well).
     assert two_hangings.report["hangings"][1]["verified"]
+
+
+def test_an_earlier_alignment_is_refined_without_a_search_and_a_wrong_one_is_searched_anew(
+    monkeypatch,
+):
+    """The quick model's verified alignment of the same captures (here: the truth a millimetre
+    and a half degree off, as the mount's correction moves it) is refined and verified with
+    no hypothesis searched; one that no longer fits (turned by 90 deg) leads to the search."""
+    import reconstruction.hangings.alignment as pa
+
+    mesh = resolve_object("pebble", 0.1)
+    X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
+    X1 = hung_pose(X0, 3, 1)
+    reference = partial_cloud(mesh.vertices, mesh.triangles, X0, 0)
+    moved = partial_cloud(mesh.vertices, mesh.triangles, X1, 1)
+    T_true = X0 @ np.linalg.inv(X1)
+    points_1 = transform_points(X1, mesh.vertices)
+    searched = []
+    search = pa.feature_hypotheses
+    monkeypatch.setattr(pa, "feature_hypotheses", lambda *a: searched.append(1) or search(*a))
+
+    centre = X0[:3, 3]  # where the object is, in the reference frame
+
+    def about_centre(R: np.ndarray, t=(0.0, 0.0, 0.0)) -> np.ndarray:
+        return make_pose(R, centre + np.asarray(t) - R @ centre)
+
+    off = about_centre(rotation_about(np.array([0.0, 1.0, 0.0]), math.radians(0.5)), [1e-3, 0, 0])
+    earlier = pa.PassAlignment(1, off @ T_true, *[math.nan] * 4, 0.3, 40, ())
+    a = pa.align_pass(1, moved, reference, SeenSpace((), ()), earlier=earlier)
+    assert a.verified and a.from_earlier and not searched
+    assert a.ambiguity == 0.3 and a.hypotheses == 1  # the search that found it measured that
+    dt, dr = alignment_error(a.T, T_true, points_1)
+    assert dt < 0.5e-3 and math.degrees(dr) < 0.2
+
+    wrong = about_centre(rotation_about(np.array([0.0, 0.0, 1.0]), math.pi / 2)) @ T_true
+    b = pa.align_pass(1, moved, reference, SeenSpace((), ()), earlier=replace(earlier, T=wrong))
+    assert searched and not b.from_earlier and b.hypotheses > 1
+    assert b.verified, b.failures
+    dt, dr = alignment_error(b.T, T_true, points_1)
+    assert dt < 0.5e-3 and math.degrees(dr) < 0.2

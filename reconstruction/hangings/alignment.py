@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -90,6 +90,9 @@ class PassAlignment:
     failures: tuple[str, ...]  # the checks that failed (empty: verified)
     # The known turn (a turntable's) refined and verified without the search for hypotheses.
     from_known_turn: bool = False
+    # The alignment the scan's quick model found on the same captures (its search ranked every
+    # hypothesis), refined and verified again here without a second search.
+    from_earlier: bool = False
 
     @property
     def verified(self) -> bool:
@@ -241,8 +244,9 @@ SAME_FIT = (2e-5, math.radians(0.005))
 # How far the refined fit of a known turn may end from the turn itself (m at the source's
 # centre, rad): the nominal axis is up to a millimetre and a tenth of a degree off the true one
 # (the turntable's mounting), the fit another millimetre off; farther, the fit has slid along
-# the shape, not refined the turn.
-KNOWN_TURN_DRIFT = (0.005, math.radians(1.0))
+# the shape, not refined the turn. The same bound holds an earlier alignment of the same
+# captures, whose poses differ from the final ones by the mount's correction (a millimetre).
+START_DRIFT = (0.005, math.radians(1.0))
 
 
 def _same_pose(A: np.ndarray, B: np.ndarray, centre: np.ndarray, within) -> bool:
@@ -265,12 +269,19 @@ def align_pass(
     colors: np.ndarray | None = None,
     reference_colors: np.ndarray | None = None,
     start: np.ndarray | None = None,
+    earlier: PassAlignment | None = None,
 ) -> PassAlignment:
     """T that puts `points` (a pass's fused cloud, colours (N, 3) uint8) onto `reference`,
     with its verification. Without colours the texture check is left out. `start`: a known
     guess of T (a turntable's turn): refined and verified first, the search for hypotheses
     runs only when it does not verify. A known turn needs no ambiguity check: the turntable,
-    not the shape, tells the symmetric orientations apart."""
+    not the shape, tells the symmetric orientations apart.
+
+    `earlier`: this pass's verified alignment found by a search on the same captures at
+    slightly other poses (the scan's quick model, before the mount was corrected on every
+    pass): refined from, and verified as any fit (the texture included) with the ambiguity
+    that search measured over all its hypotheses; the search runs again only when the fit
+    fails or slides away from it."""
     from scipy.spatial import cKDTree
 
     source, src_f = prepared_features(points, config.voxel_m)
@@ -304,10 +315,19 @@ def align_pass(
         # shape's turns apart) is not needed, and would fail where the light, fixed in the
         # cell, shades the overlap differently once the object has turned; the fit must stay
         # near the turn instead.
-        near = _same_pose(known[1], np.asarray(start, float), centre, KNOWN_TURN_DRIFT)
+        near = _same_pose(known[1], np.asarray(start, float), centre, START_DRIFT)
         if near and not _failures(known[2], known[3], 0.0, False, config):
             return _alignment(hanging, known[1], known[2], known[3], 0.0, 1, (), True)
         candidates.append(known)
+    elif earlier is not None and earlier.verified:
+        again = evaluate(_refine(source, target, np.asarray(earlier.T, float), config))
+        near = _same_pose(again[1], np.asarray(earlier.T, float), centre, START_DRIFT)
+        if near and not _failures(again[2], again[3], earlier.ambiguity, textured, config):
+            return replace(
+                _alignment(hanging, again[1], again[2], again[3], earlier.ambiguity, 1, (), False),
+                from_earlier=True,
+            )
+        candidates.append(again)
     starts = feature_hypotheses(source, target, src_f, tgt_f, config)
     textured_score = None
     if textured:

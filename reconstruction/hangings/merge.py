@@ -53,13 +53,16 @@ def align_hangings(
     voxel_m: float,
     leave_out: bool = False,
     turns: KnownTurns | None = None,
+    earlier: Mapping[int, PassAlignment] | None = None,
 ) -> tuple[list[np.ndarray], tuple[PassAlignment, ...]]:
     """Camera poses of every view in the first hanging's frame, and each further hanging's
     alignment. One that does not verify raises RefusedResultError naming the failed checks;
     with `leave_out`, its views keep their own frame instead, it is no reference for the
     hangings after it, and its alignment is returned unverified. `turns`: the passes' known
     turns (a turntable's), each pass's starting guess, about the axis as the verified
-    alignments before it calibrate it."""
+    alignments before it calibrate it. `earlier`: by hanging, its verified alignment found on
+    the same captures while they were scanned (the quick model's), refined and verified
+    instead of searched for again."""
     X_WC = [np.asarray(X) for X in X_WC]
     first = list(groups[0])
     reference = fuse_clouds([clouds[k] for k in first], [X_WC[k] for k in first], voxel_m)
@@ -79,6 +82,7 @@ def align_hangings(
             fused.colors,
             np.vstack(colors),
             start=None if turns is None else turns.start(hanging, verified_turns(alignments)),
+            earlier=None if earlier is None else earlier.get(hanging),
         )
         alignments.append(alignment)
         if not alignment.verified:
@@ -142,6 +146,7 @@ def place_hangings(
     remove_points: RemovePoints | None = None,
     leave_out: bool = False,
     turns: KnownTurns | None = None,
+    earlier: Mapping[int, PassAlignment] | None = None,
 ) -> PlacedHangings:
     """`align_hangings` (when there are several hangings), with what moves with the poses:
     each hanging's rod line (`fixtures`: one for all hangings, or one per hanging, in its own
@@ -149,7 +154,7 @@ def place_hangings(
     alignments: tuple[PassAlignment, ...] = ()
     if len(groups) > 1:
         X_WC, alignments = align_hangings(
-            views, clouds, X_WC, groups, config, voxel_m, leave_out, turns
+            views, clouds, X_WC, groups, config, voxel_m, leave_out, turns, earlier
         )
     T_of = to_first_frame(alignments)
     moved = []

@@ -126,6 +126,8 @@ def hangings_report(result, views: Gathered, to_first) -> dict:
             )
             if a.from_known_turn:  # a turntable's turn, verified without the search
                 record["known_turn_verified"] = True
+            if a.from_earlier:  # the scan's quick alignment, refined and verified again
+                record["quick_alignment_refined"] = True
             if not a.verified:
                 record.update(left_out=True, failures=list(a.failures))
             if surface is not None:

@@ -56,6 +56,7 @@ from scanner.scan_dir.known_turns import (
 )
 from scanner.scan_dir.manifest import SavedScan, open_scan
 from scanner.scan_dir.outputs import RECONSTRUCTION_MARKER
+from scanner.scan_dir.quick_alignments import quick_alignments
 from scanner.scan_dir.results_folder import free_results_dir, holds_result, staged_folder
 
 log = logging.getLogger("scanner.reconstruct.stages")
@@ -290,6 +291,7 @@ def _reconstruct(
             arriving=arriving,
             leave_out_unaligned=len(scans) == 1,
             turns=known_turns(first) if hangings and len(scans) == 1 else None,
+            earlier_alignments=quick_alignments(first) if hangings and len(scans) == 1 else None,
         )
         result = reconstruct_views(inputs, on_stage)
 

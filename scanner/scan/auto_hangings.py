@@ -20,7 +20,7 @@ import numpy as np
 from reconstruction.common.transforms import invert, rotate_vectors, transform_points
 from reconstruction.evaluation.coverage import SeenSurface, seen_surface
 from reconstruction.evaluation.metrics import SurfaceSamples, TriangleSurface
-from reconstruction.hangings.alignment import align_pass
+from reconstruction.hangings.alignment import PassAlignment, align_pass
 from reconstruction.hangings.free_space import SeenSpace
 from reconstruction.pipeline import ReconstructionInputs, reconstruct_views
 from reconstruction.registration.filtering import filter_views, o3d_cloud, refiltered
@@ -38,6 +38,7 @@ from scanner.reconstruct.scan_views import (
 from scanner.reconstruct.view_stream import ViewStream
 from scanner.scan_dir.known_turns import known_turns
 from scanner.scan_dir.manifest import SavedScan
+from scanner.scan_dir.quick_alignments import quick_alignments
 
 log = logging.getLogger("scanner.scan.auto_hangings")
 
@@ -77,6 +78,7 @@ class HangingAssessor:
         self.passes: dict[int, QuickPass] = {}
         self.T: dict[int, np.ndarray] = {0: np.eye(4)}  # hanging -> the first's frame
         self.failures: dict[int, tuple[str, ...]] = {0: ()}
+        self.alignments: dict[int, PassAlignment] = {}  # hanging -> its quick alignment
         self.X_FC: np.ndarray | None = None  # the mount, corrected on the first hanging
 
     def _views(self, indices: list[int]):
@@ -187,6 +189,8 @@ class HangingAssessor:
             q.fused.colors,
             ref_colors,
             start=None if turns is None else turns.start(h, verified),
+            # A resumed scan's quick model: the same captures, the same alignment again.
+            earlier=quick_alignments(self.scan).get(h),
         )
         if a.failures:
             # The final reconstruction verifies again (and leaves the hanging out of the model);
@@ -198,6 +202,7 @@ class HangingAssessor:
                 "; ".join(a.failures),
             )
         self.T[h], self.failures[h] = a.T, tuple(a.failures)
+        self.alignments[h] = a
 
 
 def _moved(seen: SeenSurface, T: np.ndarray) -> SeenSurface:

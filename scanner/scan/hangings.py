@@ -27,6 +27,7 @@ from scanner.scan.viewpoints import planned_view
 from scanner.scan.world import ScanWorld, WatchedRobot, live_cloud, software_kinematics
 from scanner.scan_dir.captures import CaptureStore
 from scanner.scan_dir.manifest import open_scan, views_to_manifest
+from scanner.scan_dir.quick_alignments import record_quick_alignments
 from scanner.scan_dir.views import PlannedView
 
 log = logging.getLogger("scanner.scan.hangings")
@@ -146,6 +147,8 @@ class HangingRunner:
         with self.timer("coverage_check"):
             captured = set(self.store.captured_indices())
             assessment = self.assessor.assess(self.hangings, hanging, captured)
+        # The reconstruction refines these rather than searching for them again.
+        record_quick_alignments(self.store, list(self.assessor.alignments.values()))
         coverage = [entry["coverage_after"] for entry in journal] + [assessment.fraction]
         limit = self.presentation.max_passes
         config = self.config

@@ -24,6 +24,7 @@ from pathlib import Path
 from reconstruction.common.errors import ScannerError
 from scanner.scan_dir.captures import CAPTURES, RESULTS, CaptureStore
 from scanner.scan_dir.manifest import SavedScan, open_scan
+from scanner.scan_dir.quick_alignments import without_passes_from
 
 log = logging.getLogger("scanner.scan.rescan")
 
@@ -115,6 +116,7 @@ def reopen_left_out(saved: SavedScan) -> SavedScan:
         pending_rehang=h,
         rescanning=h,
         hanging_log=[entry for entry in journal if entry not in decided],
+        quick_alignments=without_passes_from(manifest, h),
         stop_reason=None if last else manifest.get("stop_reason"),
         rescans=[*manifest.get("rescans", []), history],
     )
