@@ -53,9 +53,10 @@ def main() -> None:
     parser.add_argument("--object", default="vase")
     parser.add_argument(
         "--hangings",
-        type=int,
+        type=lambda text: text if text == "auto" else int(text),
         default=1,
-        help="passes over the object, re-hung between them (default 1)",
+        help="passes over the object, re-hung between them (default 1), or 'auto' (the "
+        "product's default: more while the model is not complete)",
     )
     parser.add_argument(
         "--keep", type=Path, help="keep the scan directory here (default: a removed temporary one)"
