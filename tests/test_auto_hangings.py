@@ -145,8 +145,8 @@ def test_an_auto_scan_asks_for_a_second_hanging_and_the_operator_follows_it(
 
     # The tiny scan's roadmap, view candidates and coarse surface (Poisson: the one merged), and
     # a smaller search for the hangings' alignment (2 RANSAC runs, 4 rotation-grid fits kept of
-    # each ranking): each hanging is searched for once (the quick model's; the reconstruction
-    # refines what it found).
+    # each ranking): each hanging is searched for once (on its first views, while the rest are
+    # captured; the quick model and the reconstruction refine what it found).
     surfaces = {**TINY_PROCESSING["reconstruction"]["surfaces"], "methods": ["poisson"]}
     alignment = {"runs": 2, "coarse_starts_kept": 4}
     processing = {
@@ -194,8 +194,12 @@ def test_an_auto_scan_asks_for_a_second_hanging_and_the_operator_follows_it(
     # The reconstruction merged both hangings, kept the picture, and the summary tells the story.
     assert [p["hanging"] for p in report["hangings"]] == [1, 2]
     assert report["hangings"][1]["verified"]
-    # Hanging 2's quick alignment, kept in the manifest, was refined rather than searched for
-    # a second time.
+    # Hanging 2's alignment was searched for on its first 3 views while the other 3 were
+    # captured; the quick model and then the reconstruction refined it rather than searching
+    # again.
+    log_text = (result.scan_dir / "scan.log").read_text()
+    assert "pass 2: aligning it from its first 3 views meanwhile" in log_text
+    assert "early_alignment_wait" in report["stage_s"]
     assert set(manifest["quick_alignments"]) == {"1"}
     assert report["hangings"][1]["quick_alignment_refined"] is True
     assert (result.scan_dir / request["picture"]).is_file()

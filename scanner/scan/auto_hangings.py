@@ -166,32 +166,7 @@ class HangingAssessor:
         )
 
     def _align(self, h: int) -> None:
-        reference = [self.passes[k] for k in range(h)]
-        ref_points = np.vstack(
-            [transform_points(self.T[k], p.fused.points_W) for k, p in enumerate(reference)]
-        )
-        ref_colors = np.vstack([p.fused.colors for p in reference])
-        seen = SeenSpace(
-            tuple(d for p in reference for d in p.depths),
-            tuple(self.T[k] @ X for k, p in enumerate(reference) for X in p.X_WC),
-        )
-        q = self.passes[h]
-        # On a turntable the known turn starts the alignment, about the axis the verified
-        # turns before it calibrate.
-        turns = known_turns(self.scan, h + 1)
-        verified = [(k, self.T[k]) for k in range(1, h) if not self.failures[k]]
-        a = align_pass(
-            h,
-            q.fused.points_W,
-            ref_points,
-            seen,
-            self.scan.config.processing.reconstruction.alignment,
-            q.fused.colors,
-            ref_colors,
-            start=None if turns is None else turns.start(h, verified),
-            # A resumed scan's quick model: the same captures, the same alignment again.
-            earlier=quick_alignments(self.scan).get(h),
-        )
+        a = self._aligned(h, self.passes[h], quick_alignments(self.scan).get(h))
         if a.failures:
             # The final reconstruction verifies again (and leaves the hanging out of the model);
             # here the best fit still tells what was seen and how to turn the object next.
@@ -203,6 +178,49 @@ class HangingAssessor:
             )
         self.T[h], self.failures[h] = a.T, tuple(a.failures)
         self.alignments[h] = a
+
+    def _aligned(self, h: int, q: QuickPass, earlier: PassAlignment | None) -> PassAlignment:
+        """Pass `h`'s quick model `q` aligned onto the passes before it (`earlier`: an
+        alignment of it found before, refined instead of searched for again)."""
+        reference = [self.passes[k] for k in range(h)]
+        ref_points = np.vstack(
+            [transform_points(self.T[k], p.fused.points_W) for k, p in enumerate(reference)]
+        )
+        ref_colors = np.vstack([p.fused.colors for p in reference])
+        seen = SeenSpace(
+            tuple(d for p in reference for d in p.depths),
+            tuple(self.T[k] @ X for k, p in enumerate(reference) for X in p.X_WC),
+        )
+        # On a turntable the known turn starts the alignment, about the axis the verified
+        # turns before it calibrate.
+        turns = known_turns(self.scan, h + 1)
+        verified = [(k, self.T[k]) for k in range(1, h) if not self.failures[k]]
+        return align_pass(
+            h,
+            q.fused.points_W,
+            ref_points,
+            seen,
+            self.scan.config.processing.reconstruction.alignment,
+            q.fused.colors,
+            ref_colors,
+            start=None if turns is None else turns.start(h, verified),
+            earlier=earlier,
+        )
+
+    def early_alignment(
+        self, hangings: list[list[int]], hanging: int, captured: set[int]
+    ) -> PassAlignment:
+        """Pass `hanging` aligned from the views it has so far (`captured`) onto the passes
+        before it (their whole quick models, made and aligned here when not yet): the search
+        for hypotheses, run while the rest of the pass is captured, so that after its last
+        picture the alignment is only refined."""
+        for h in range(hanging):
+            if h not in self.passes:
+                self.passes[h] = self._quick([i for i in hangings[h] if i in captured])
+            if h not in self.T:
+                self._align(h)
+        partial = self._quick([i for i in hangings[hanging] if i in captured])
+        return self._aligned(hanging, partial, None)
 
 
 def _moved(seen: SeenSurface, T: np.ndarray) -> SeenSurface:

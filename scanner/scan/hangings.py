@@ -6,12 +6,15 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import suppress
 
 import numpy as np
 
 from planners.tour import Tour, plan_tour
-from reconstruction.common.errors import StorageError
+from reconstruction.common.errors import ScannerError, StorageError
+from reconstruction.common.stage_timer import cpu_seconds
 from robots.drivers.staubli_val3 import RobotStoppedError
 from robots.simulation.truth import record_hung_pose
 from scanner.configs.scan import ScanConfig
@@ -31,6 +34,9 @@ from scanner.scan_dir.quick_alignments import record_quick_alignments
 from scanner.scan_dir.views import PlannedView
 
 log = logging.getLogger("scanner.scan.hangings")
+
+# The fewest views of a pass its early alignment is searched on.
+EARLY_MIN_VIEWS = 3
 
 
 def _decision_maker(
@@ -81,6 +87,12 @@ class HangingRunner:
         )
         self.assessor: HangingAssessor | None = None
         self.presentation = presentation_for(config, store)
+        # Each further pass's alignment searched for on its first views, while the rest are
+        # captured (`_align_early`); one thread, beside the scan's own.
+        self.early: dict[int, Future] = {}
+        # (wall, CPU seconds) when the last capture was stored: the wait for the model starts.
+        self.last_capture: tuple[float, float] | None = None
+        self._early_pool: ThreadPoolExecutor | None = None
 
     def request_abort(self) -> None:
         self.abort_requested = True
@@ -116,6 +128,7 @@ class HangingRunner:
             summaries += self._extra_views(hanging)
             if self._aborted(summaries):
                 break
+            self._early_alignment_done(hanging)
             if self.config.auto_hangings and hanging == len(self.hangings) - 1:
                 self._after_hanging(hanging)
             hanging += 1
@@ -289,13 +302,71 @@ class HangingRunner:
         if self.abort_requested:
             machine.request_abort()
         total = len(self.views)
+        hanging = self.stream.hanging if self.stream is not None else 0
+
+        def view_done(outcome) -> None:
+            if outcome.captured:
+                self.last_capture = (time.perf_counter(), cpu_seconds())
+            captured = self.store.captured_indices()
+            if self.progress:
+                self.progress(len(captured), total)
+            self._align_early(hanging, set(captured))
+
         if self.progress:
             self.progress(len(done), total)
-            machine.on_view_done = lambda _: self.progress(
-                len(self.store.captured_indices()), total
-            )
+        machine.on_view_done = view_done
         with self.timer("capture"):
             return _run_machine(machine, self.store)
+
+    def _align_early(self, hanging: int, captured: set[int]) -> None:
+        """Once a further pass has half its views (and at least EARLY_MIN_VIEWS), its
+        alignment onto the passes before it is searched for in the background on those views;
+        after the pass, the verified one is kept for the auto decision and the reconstruction
+        to refine, so that the search does not run after the last picture."""
+        # Only where the passes before it have their quick models anyway (`hangings: auto`):
+        # made here, the first pass's (with its mount correction) cost more than the search
+        # it hides (two fixed hangings of 24 views: 31 s waited for the model, 41 s with it).
+        if not self.config.auto_hangings:
+            return
+        if hanging == 0 or hanging in self.early or self.stream is None:
+            return
+        planned = self.hangings[hanging]
+        got = [i for i in planned if i in captured]
+        if len(got) < max(EARLY_MIN_VIEWS, len(planned) // 2) or len(got) == len(planned):
+            return
+        if str(hanging) in (self.store.read_manifest().get("quick_alignments") or {}):
+            return  # found before an interruption
+        if self.assessor is None:  # a resumed scan: the decision after the pass makes it too
+            self.assessor = HangingAssessor(open_scan(self.store.root), self.stream)
+        if self._early_pool is None:
+            self._early_pool = ThreadPoolExecutor(1, thread_name_prefix="early-alignment")
+        hangings = [list(h) for h in self.hangings]
+        self.early[hanging] = self._early_pool.submit(
+            self.assessor.early_alignment, hangings, hanging, set(captured)
+        )
+        log.info("pass %d: aligning it from its first %d views meanwhile", hanging + 1, len(got))
+
+    def _early_alignment_done(self, hanging: int) -> None:
+        """Wait for the pass's early alignment and keep it when it verified."""
+        future = self.early.get(hanging)
+        if future is None:
+            return
+        try:
+            with self.timer("early_alignment_wait"):
+                alignment = future.result()
+        except ScannerError as e:
+            # Too little of the pass to align yet: the alignment after the pass searches.
+            log.info("pass %d: no early alignment (%s)", hanging + 1, e)
+            return
+        if alignment.verified:
+            record_quick_alignments(self.store, [alignment])
+        else:
+            log.info(
+                "pass %d: its first views did not align verifiably (%s); it is searched for "
+                "again after the pass",
+                hanging + 1,
+                "; ".join(alignment.failures),
+            )
 
 
 def _combined(summaries: list[RunSummary]) -> RunSummary:

@@ -246,8 +246,12 @@ def run_scan(
         try:
             summary = run.passes(hangings, first)
         finally:
-            # The last capture is stored: from here on the user waits for the model.
-            last_capture_wall, last_capture_cpu = time.perf_counter(), cpu_seconds()
+            # From the last capture stored on, the user waits for the model: what ran after it
+            # inside the passes (the decision about another hanging) counts.
+            last_capture_wall, last_capture_cpu = run.last_capture or (
+                time.perf_counter(),
+                cpu_seconds(),
+            )
             streamed = stream.finish() if stream else None
     status = "interrupted" if summary.state.value == "aborted" else "captured"
     skipped = [{"index": o.index, "reason": o.reason} for o in summary.skipped]
