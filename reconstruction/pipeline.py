@@ -32,9 +32,10 @@ import numpy as np
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.stage_timer import StageListener, StageTimer
 from reconstruction.common.transforms import check_pose
+from reconstruction.config import ReconstructionConfig
 from reconstruction.evaluation.coverage import Coverage, coverage_estimate
 from reconstruction.evaluation.support import SupportPlane
-from reconstruction.handeye.correction import HandEyeConfig, HandEyeResult
+from reconstruction.handeye.correction import HandEyeResult
 from reconstruction.handeye.rounds import (
     CorrectedViews,
     CorrectionInputs,
@@ -42,7 +43,7 @@ from reconstruction.handeye.rounds import (
     filter_step,
     register_and_correct,
 )
-from reconstruction.hangings.alignment import AlignmentConfig, PassAlignment
+from reconstruction.hangings.alignment import PassAlignment
 from reconstruction.hangings.merge import (
     PlacedHangings,
     left_out,
@@ -52,68 +53,19 @@ from reconstruction.hangings.merge import (
 from reconstruction.hangings.turntable import KnownTurns
 from reconstruction.registration.all_views import EdgeReport
 from reconstruction.registration.filtering import (
-    FilterConfig,
     FilterCounts,
     FilteredCloud,
     RemovePoints,
     refiltered,
 )
 from reconstruction.registration.incremental import ArrivingPairs
-from reconstruction.registration.pairwise import IcpConfig
-from reconstruction.registration.posegraph import PoseGraphConfig, optimise_pose_graph
+from reconstruction.registration.posegraph import optimise_pose_graph
 from reconstruction.registration.views import ViewCloud
 from reconstruction.surfaces.build import surface_from
-from reconstruction.surfaces.config import SurfaceConfig
 from reconstruction.surfaces.fixture import FixtureLine, without_fixture
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds, refine_fused
 from reconstruction.surfaces.meshes import DepthView, SurfaceInput, SurfaceMesh
 from reconstruction.surfaces.poisson_solver import start_solver
-
-
-@dataclass(frozen=True)
-class ReconstructionConfig:
-    filter: FilterConfig = field(default_factory=FilterConfig)
-    icp: IcpConfig = field(default_factory=IcpConfig)
-    pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
-    handeye: HandEyeConfig = field(default_factory=HandEyeConfig)
-    surfaces: SurfaceConfig = field(default_factory=SurfaceConfig)
-    # After the hand-eye correction, one more pose graph with the corrected kinematic poses as
-    # priors and the same ICP edges, to absorb per-view errors (joint offsets) that no shared
-    # X_FC can explain.
-    final_pose_graph: bool = False
-    min_views: int = 2
-    # Putting the passes of a multi-hanging scan into one frame.
-    alignment: AlignmentConfig = field(default_factory=AlignmentConfig)
-
-    def __post_init__(self) -> None:
-        if self.min_views < 1:
-            raise ScannerError(f"reconstruction.min_views: must be >= 1, got {self.min_views}")
-
-
-def _pose_only(c: ReconstructionConfig) -> ReconstructionConfig:
-    return replace(c, icp=replace(c.icp, enabled=False), handeye=replace(c.handeye, enabled=False))
-
-
-def _icp_only(c: ReconstructionConfig) -> ReconstructionConfig:
-    return replace(c, icp=replace(c.icp, enabled=True), handeye=replace(c.handeye, enabled=False))
-
-
-def _corrected(c: ReconstructionConfig) -> ReconstructionConfig:
-    return replace(c, icp=replace(c.icp, enabled=True), handeye=replace(c.handeye, enabled=True))
-
-
-VARIANTS: dict[str, Callable[[ReconstructionConfig], ReconstructionConfig]] = {
-    "pose_only": _pose_only,
-    "icp": _icp_only,
-    "corrected": _corrected,
-}
-
-
-def variant_config(config: ReconstructionConfig, variant: str) -> ReconstructionConfig:
-    """The configuration with the ICP / correction flags of a named variant."""
-    if variant not in VARIANTS:
-        raise ScannerError(f"unknown variant '{variant}'; valid: {', '.join(VARIANTS)}")
-    return VARIANTS[variant](config)
 
 
 @dataclass(frozen=True, eq=False)

@@ -22,8 +22,8 @@ from pathlib import Path
 from benchmark_data import MESHES, add_scan_options, mesh_scan, require
 
 from reconstruction.common.stage_timer import cpu_seconds
+from reconstruction.config import VARIANTS, variant_config
 from reconstruction.evaluation.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
-from reconstruction.pipeline import VARIANTS, variant_config
 from scanner.configs.scan import ProcessingConfig
 from scanner.reconstruct.stages import run_reconstruct
 from scanner.scan_dir.captures import CaptureStore

@@ -18,7 +18,7 @@ import yaml
 
 from reconstruction.calibration.file import load_calibration
 from reconstruction.common.errors import StorageError
-from reconstruction.pipeline import variant_config
+from reconstruction.config import variant_config
 from scanner.configs.scan import load_scan_config
 from scanner.scan.run import run_scan
 from scanner.scan_dir.captures import CaptureStore

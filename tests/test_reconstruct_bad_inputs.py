@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from reconstruction.pipeline import variant_config
+from reconstruction.config import variant_config
 from scanner.reconstruct.stages import run_reconstruct
 from scanner.reports.self_checks import EXIT_SELF_CHECK_FAILED
 from scanner.scan_dir.captures import CaptureStore

@@ -13,8 +13,8 @@ from planners.config import PlannerConfig
 from reconstruction.common.checks import check_fields, fraction, integer, non_negative, positive
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.yaml_files import read_yaml
+from reconstruction.config import ReconstructionConfig
 from reconstruction.depth.camera_model import DepthDesign
-from reconstruction.pipeline import ReconstructionConfig
 from reconstruction.stereo.camera_model import StereoDesign
 from reconstruction.stereo.params import StereoParams
 from reconstruction.surfaces.export import MeshExportConfig

@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
+from reconstruction.config import ReconstructionConfig
 from reconstruction.depth.camera_model import CameraModel
 from reconstruction.evaluation.metrics import TriangleSurface
 from reconstruction.evaluation.support import SupportPlane
-from reconstruction.pipeline import ReconstructionConfig
 from reconstruction.registration.filtering import VIEW_THREADS, filter_views
 from reconstruction.registration.views import ViewCloud
 from reconstruction.stereo.params import StereoParams

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from reconstruction.common.checks import check_fields, positive
 from reconstruction.common.errors import ScannerError
-from reconstruction.pipeline import ReconstructionConfig
+from reconstruction.config import ReconstructionConfig
 from reconstruction.stereo.params import StereoParams
 from reconstruction.surfaces.export import MeshExportConfig
 from reconstruction.surfaces.meshes import MESH_SUFFIXES
