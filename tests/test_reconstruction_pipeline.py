@@ -15,14 +15,10 @@ from synthetic_views import OBJECT_CENTER_W, ROBOT_SIDE, cap_directions, make_sc
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import pose_difference, transform_points
+from reconstruction.config import ReconstructionConfig, variant_config
 from reconstruction.evaluation.metrics import TriangleSurface, evaluate_surface, handeye_error
 from reconstruction.outputs import save_outputs, summary
-from reconstruction.pipeline import (
-    ReconstructionConfig,
-    ReconstructionInputs,
-    reconstruct_views,
-    variant_config,
-)
+from reconstruction.pipeline import ReconstructionInputs, reconstruct_views
 from reconstruction.registration.filtering import FilterConfig, RegionOfInterest
 from reconstruction.registration.pairwise import IcpConfig
 from reconstruction.registration.views import ViewCloud

@@ -23,9 +23,9 @@ from reconstruction.common.errors import ScannerError
 from reconstruction.common.stage_timer import StageTimer
 from reconstruction.common.transforms import transform_points
 from reconstruction.common.yaml_files import yaml_text
+from reconstruction.config import ReconstructionConfig
 from reconstruction.outputs import save_outputs, summary
 from reconstruction.pipeline import (
-    ReconstructionConfig,
     ReconstructionInputs,
     ReconstructionResult,
     reconstruct_views,
