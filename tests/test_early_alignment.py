@@ -1,0 +1,90 @@
+"""When a further pass's alignment is searched for during its capture (`hangings: auto`): from
+half its views on, once, not for the first pass, not for fixed hangings, not again after an
+interruption that kept it; and what is kept of it afterwards (only a verified one; a search
+that could not run leaves the search after the pass to decide)."""
+
+from __future__ import annotations
+
+from contextlib import nullcontext
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from reconstruction.common.errors import ScannerError
+from reconstruction.hangings.alignment import PassAlignment
+from scanner.configs.scan import ScanConfig
+from scanner.scan.hangings import HangingRunner
+from scanner.scan_dir.captures import CaptureStore
+from scanner.scan_dir.quick_alignments import quick_alignments, record_quick_alignments
+
+HANGINGS = [[0, 1, 2, 3, 4, 5], [6, 7, 8, 9, 10, 11]]
+
+
+class FakeAssessor:
+    """Answers the early search with a prepared outcome, and records what it was asked."""
+
+    def __init__(self, outcome) -> None:
+        self.outcome, self.asked = outcome, []
+
+    def early_alignment(self, hangings, hanging, captured):
+        self.asked.append((hanging, sorted(captured)))
+        if isinstance(self.outcome, Exception):
+            raise self.outcome
+        return self.outcome
+
+
+def _runner(tmp_path, outcome, hangings="auto") -> tuple[HangingRunner, FakeAssessor]:
+    store = CaptureStore.create(tmp_path / "scan", {"status": "running"})
+    config = replace(ScanConfig(), hangings=hangings)
+    stream = SimpleNamespace(hanging=1)
+    runner = HangingRunner(
+        config, None, store, [], None, None, lambda stage: nullcontext(), None, stream
+    )
+    runner.hangings = [list(h) for h in HANGINGS]
+    runner.assessor = FakeAssessor(outcome)
+    return runner, runner.assessor
+
+
+def _alignment(failures=()) -> PassAlignment:
+    T = np.eye(4)
+    T[:3, 3] = [0.01, 0.02, 0.0]
+    return PassAlignment(1, T, 0.5, 4e-4, 0.01, 0.4, 0.2, 17, tuple(failures))
+
+
+def test_it_starts_once_at_half_the_pass_and_a_verified_one_is_kept(tmp_path):
+    runner, assessor = _runner(tmp_path, _alignment())
+    first = set(HANGINGS[0])
+    runner._align_early(0, first)  # the first pass has nothing to align onto
+    runner._align_early(1, first | {6, 7})  # 2 of 6: too few
+    assert not runner.early and not assessor.asked
+    runner._align_early(1, first | {6, 7, 8})
+    runner._align_early(1, first | {6, 7, 8, 9})  # already under way
+    runner._early_alignment_done(1)
+    assert assessor.asked == [(1, sorted(first | {6, 7, 8}))]
+    kept = quick_alignments(SimpleNamespace(store=runner.store))
+    np.testing.assert_array_equal(kept[1].T, _alignment().T)
+    assert kept[1].ambiguity == 0.2 and kept[1].hypotheses == 17
+
+
+def test_not_for_fixed_hangings_nor_a_whole_pass_nor_again_after_an_interruption(tmp_path):
+    fixed, assessor = _runner(tmp_path / "fixed", _alignment(), hangings=2)
+    fixed._align_early(1, set(range(9)))
+    assert not fixed.early and not assessor.asked
+    runner, assessor = _runner(tmp_path / "auto", _alignment())
+    runner._align_early(1, set(range(12)))  # all captured: the search after the pass does it
+    assert not runner.early
+    record_quick_alignments(runner.store, [_alignment()])  # kept before an interruption
+    runner._align_early(1, set(range(9)))
+    assert not runner.early and not assessor.asked
+
+
+@pytest.mark.parametrize(
+    "outcome", [_alignment(["overlap 0.05 (need >= 0.2)"]), ScannerError("fewer than 2 views")]
+)
+def test_an_unverified_or_impossible_early_search_keeps_nothing(tmp_path, outcome):
+    runner, assessor = _runner(tmp_path, outcome)
+    runner._align_early(1, set(range(9)))
+    runner._early_alignment_done(1)
+    assert assessor.asked and quick_alignments(SimpleNamespace(store=runner.store)) == {}
