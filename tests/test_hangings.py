@@ -116,17 +116,22 @@ def test_the_texture_must_agree_another_object_of_the_same_shape_is_refused():
     assert at_truth.colour_agreement < config.min_colour_agreement
 
 
+def _two_hangings_of(mesh):
+    """The mesh hung at X0 and re-hung at X1 as the simulator turns it: each hanging's partial
+    cloud (the reference, the moved pass) and the true pass transform T_true."""
+    X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
+    X1 = hung_pose(X0, 3, 1)
+    reference = partial_cloud(mesh.vertices, mesh.triangles, X0, 0)
+    moved = partial_cloud(mesh.vertices, mesh.triangles, X1, 1)
+    return mesh, X0, X1, reference, moved, X0 @ np.linalg.inv(X1)
+
+
 @pytest.mark.parametrize("name", ["bracket", "pebble"])
 def test_two_hangings_of_an_asymmetric_object_align_within_a_fraction_of_a_mm(name):
     # 0.1 m objects, in a third of the time of 0.2 m ones: measured 0.15 mm / 0.04 deg (bracket)
     # and 0.08 mm / 0.07 deg (pebble); at 0.2 m 0.06 and 0.05 mm. Whole scans of 0.2 m objects
     # align within 0.6 mm / 0.3 deg (scripts/bench_complete.py).
-    mesh = resolve_object(name, 0.1)
-    X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
-    X1 = hung_pose(X0, 3, 1)
-    reference = partial_cloud(mesh.vertices, mesh.triangles, X0, 0)
-    moved = partial_cloud(mesh.vertices, mesh.triangles, X1, 1)
-    T_true = X0 @ np.linalg.inv(X1)
+    mesh, X0, X1, reference, moved, T_true = _two_hangings_of(resolve_object(name, 0.1))
     a = align_pass(1, moved, reference, SeenSpace((), ()))
     assert a.verified, a.failures
     dt, dr = alignment_error(a.T, T_true, transform_points(X1, mesh.vertices))
@@ -136,12 +141,7 @@ def test_two_hangings_of_an_asymmetric_object_align_within_a_fraction_of_a_mm(na
 def test_hypotheses_that_start_or_end_alike_are_refined_and_scored_once(monkeypatch):
     import reconstruction.hangings.alignment as pa
 
-    mesh = resolve_object("pebble", 0.2)
-    X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
-    X1 = hung_pose(X0, 3, 1)
-    reference = partial_cloud(mesh.vertices, mesh.triangles, X0, 0)
-    moved = partial_cloud(mesh.vertices, mesh.triangles, X1, 1)
-    T_true = X0 @ np.linalg.inv(X1)
+    mesh, X0, X1, reference, moved, T_true = _two_hangings_of(resolve_object("pebble", 0.2))
     near, apart = T_true.copy(), T_true.copy()
     near[:3, 3] += 0.0005  # starts where the first did
     apart[:3, 3] += 0.004  # starts elsewhere, ends where the first did
@@ -405,12 +405,7 @@ def test_an_earlier_alignment_is_refined_without_a_search_and_a_wrong_one_is_sea
     no hypothesis searched; one that no longer fits (turned by 90 deg) leads to the search."""
     import reconstruction.hangings.alignment as pa
 
-    mesh = resolve_object("pebble", 0.1)
-    X0 = make_pose(np.eye(3), [0.4, 0.0, 1.0])
-    X1 = hung_pose(X0, 3, 1)
-    reference = partial_cloud(mesh.vertices, mesh.triangles, X0, 0)
-    moved = partial_cloud(mesh.vertices, mesh.triangles, X1, 1)
-    T_true = X0 @ np.linalg.inv(X1)
+    mesh, X0, X1, reference, moved, T_true = _two_hangings_of(resolve_object("pebble", 0.1))
     points_1 = transform_points(X1, mesh.vertices)
     searched = []
     search = pa.feature_hypotheses
