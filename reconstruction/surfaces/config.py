@@ -63,7 +63,6 @@ class SurfaceConfig:
     tsdf_truncation_voxels: float = positive(4.0)
     tsdf_depth_max_m: float = positive(1.5)
     tsdf_min_views: int = integer(1)  # views that must have seen a voxel for it to be meshed
-    tsdf_block_count: int = integer(40000)
     ball_pivoting_radii_m: tuple[float, ...] = (0.001, 0.002, 0.004)
     # Components with fewer triangles than this fraction of the largest one are debris.
     min_component_fraction: float = 0.02

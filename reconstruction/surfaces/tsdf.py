@@ -54,6 +54,22 @@ def masked_depth(
     return depth
 
 
+BLOCK_RESOLUTION = 16  # voxels along a block's edge (Open3D's usual)
+
+
+def _grid(names: tuple[str, ...], config: SurfaceConfig, blocks: int):
+    f32 = o3d.core.float32
+    return o3d.t.geometry.VoxelBlockGrid(
+        attr_names=names,
+        attr_dtypes=(f32,) * len(names),
+        attr_channels=((1), (1), (3))[: len(names)],
+        voxel_size=config.tsdf_voxel_size_m,
+        block_resolution=BLOCK_RESOLUTION,
+        block_count=blocks,
+        device=o3d.core.Device("CPU:0"),
+    )
+
+
 def tsdf_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
     """Open3D tensor VoxelBlockGrid TSDF of the depth maps (the legacy ScalableTSDFVolume gave
     0 triangles with float depth in metres in a prototype); colours when the depth maps have
@@ -63,32 +79,35 @@ def tsdf_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
         raise ScannerError("TSDF: no depth maps given (the views carry no DepthImage)")
     with_color = all(v.depth.color is not None for v in depth_views)
     names = ("tsdf", "weight", "color") if with_color else ("tsdf", "weight")
-    f32 = o3d.core.float32
-    grid = o3d.t.geometry.VoxelBlockGrid(
-        attr_names=names,
-        attr_dtypes=(f32,) * len(names),
-        attr_channels=((1), (1), (3))[: len(names)],
-        voxel_size=config.tsdf_voxel_size_m,
-        block_resolution=16,
-        block_count=config.tsdf_block_count,
-        device=o3d.core.Device("CPU:0"),
-    )
-    for view in depth_views:
+    args = (1.0, config.tsdf_depth_max_m, config.tsdf_truncation_voxels)
+
+    def frame(view: DepthView):
         depth = o3d.t.geometry.Image(
             o3d.core.Tensor(masked_depth(view, roi, remove_points).astype(np.float32))
         )
         K = o3d.core.Tensor(view.depth.K, o3d.core.float64)
         # Open3D's extrinsic maps world to camera: X_DW for the depth map's frame D.
         X_DW = o3d.core.Tensor(invert(view.X_WC @ view.depth.X_CD), o3d.core.float64)
-        args = (1.0, config.tsdf_depth_max_m, config.tsdf_truncation_voxels)
-        blocks = grid.compute_unique_block_coordinates(depth, K, X_DW, *args)
+        return depth, K, X_DW
+
+    # The grid holds exactly the blocks the views touch. Allocated up front for a fixed 40,000
+    # blocks it cost 3.3 GB of address space and 1.8 s of zero-filling per surface (with
+    # colour), whatever the object; left to grow, it rehashes as it goes. The blocks come from
+    # a scratch grid (they depend on the depth map and the pose alone), the depth maps are
+    # masked again for the integration rather than all kept (5 MB each at 1280x960).
+    scratch = _grid(names[:2], config, 1)
+    blocks = [scratch.compute_unique_block_coordinates(*frame(view), *args) for view in depth_views]
+    touched = np.unique(np.concatenate([b.numpy() for b in blocks]), axis=0)
+    grid = _grid(names, config, max(len(touched), 1))
+    for view, view_blocks in zip(depth_views, blocks, strict=True):
+        depth, K, X_DW = frame(view)
         if with_color:
             color = o3d.t.geometry.Image(
                 o3d.core.Tensor(np.ascontiguousarray(view.depth.color, np.float32) / 255.0)
             )
-            grid.integrate(blocks, depth, color, K, X_DW, *args)
+            grid.integrate(view_blocks, depth, color, K, X_DW, *args)
         else:
-            grid.integrate(blocks, depth, K, X_DW, *args)
+            grid.integrate(view_blocks, depth, K, X_DW, *args)
     # Each integration adds 1 to a voxel's weight and Open3D keeps voxels above the threshold
     # (a threshold of 1.0 dropped every voxel seen once: 12 % of the observed surface).
     threshold = config.tsdf_min_views - 0.5
