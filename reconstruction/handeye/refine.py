@@ -34,14 +34,17 @@ def check_fit_settings(loss: str, loss_field: str, levels: tuple, levels_field: 
 
 @dataclass(frozen=True)
 class RefineLevel:
-    """One stage of the joint refinement: correspondence gate and iteration cap."""
+    """One stage of the joint refinement: correspondence gate, iteration cap, and at most how
+    many of each view's (thinned, capped) source points it matches (0: all of them)."""
 
     max_correspondence_m: float
     max_iterations: int
+    points_per_view: int = 0
 
     def __post_init__(self) -> None:
         require_positive("handeye.refine_levels", self, ("max_correspondence_m",))
         require_count("handeye.refine_levels", self, ("max_iterations",))
+        require_count("handeye.refine_levels", self, ("points_per_view",), minimum=0)
 
 
 @dataclass(frozen=True)
@@ -140,30 +143,43 @@ class _Matches:
     target: np.ndarray
 
 
+def _level_sources(views: Sequence[_RefineView], points_per_view: int) -> list[np.ndarray]:
+    """Each view's source points for one level: every k-th, so that at most `points_per_view`
+    remain (all of them for 0)."""
+    out = []
+    for v in views:
+        n = len(v.source_C)
+        out.append(
+            v.source_C[:: -(-n // points_per_view)] if 0 < points_per_view < n else v.source_C
+        )
+    return out
+
+
 def _matches(
     views: Sequence[_RefineView],
+    sources_C: Sequence[np.ndarray],
     X_WF: Sequence[np.ndarray],
     sources_of: dict[int, list[int]],
     X_FC: np.ndarray,
     gate_m: float,
 ) -> _Matches:
-    """Residuals n_W . (p_W - q_W) of every source point with a target point within the gate,
-    and their Jacobians. All sources of one target are queried together (one KD-tree query per
-    target view)."""
+    """Residuals n_W . (p_W - q_W) of every source point (`sources_C`, per view) with a target
+    point within the gate, and their Jacobians. All sources of one target are queried together
+    (one KD-tree query per target view)."""
     residuals, jacobians, source_of, target_of = [], [], [], []
     X_WC = [X @ X_FC for X in X_WF]
     for t, sources in sources_of.items():
         vt = views[t]
         X_CtW = invert(X_WC[t])
-        p_Ct = np.vstack([transform_points(X_CtW @ X_WC[s], views[s].source_C) for s in sources])
+        p_Ct = np.vstack([transform_points(X_CtW @ X_WC[s], sources_C[s]) for s in sources])
         d, k = vt.tree.query(p_Ct, distance_upper_bound=gate_m, workers=query_workers(len(p_Ct)))
         ok = np.isfinite(d)
         if not ok.any():
             continue
         # The matches of each source view, a block each (the sources were stacked in order).
-        ends = np.cumsum([len(views[s].source_C) for s in sources])
+        ends = np.cumsum([len(sources_C[s]) for s in sources])
         bounds = np.searchsorted(np.flatnonzero(ok), np.concatenate([[0], ends]))
-        p_Cs = np.vstack([views[s].source_C for s in sources])[ok]
+        p_Cs = np.vstack([sources_C[s] for s in sources])[ok]
         p_Ct = p_Ct[ok]
         q_Ct, n_Ct = vt.target_C[k[ok]], vt.normals_C[k[ok]]
         # Both points in C_t: n . (p - q) is the same number in W, and cheaper here.
@@ -212,10 +228,12 @@ def refine_on_clouds(
     r = np.zeros(0)
     w = np.zeros(0)
     delta = np.zeros(6)
+    every = [v.source_C for v in views]
     for level in settings.levels:
         converged = False
+        sources_C = _level_sources(views, level.points_per_view)
         for _ in range(level.max_iterations):
-            m = _matches(views, X_WF, sources_of, X_FC, level.max_correspondence_m)
+            m = _matches(views, sources_C, X_WF, sources_of, X_FC, level.max_correspondence_m)
             r, J = m.r, m.J
             if len(r) < 6:
                 raise ScannerError(
@@ -236,7 +254,7 @@ def refine_on_clouds(
                 converged = True
                 break
     last_step = (float(np.linalg.norm(delta[3:])), float(np.linalg.norm(delta[:3])))
-    m = _matches(views, X_WF, sources_of, X_FC, settings.levels[-1].max_correspondence_m)
+    m = _matches(views, every, X_WF, sources_of, X_FC, settings.levels[-1].max_correspondence_m)
     r, J = m.r, m.J
     queried = sum(len(views[s].source_C) for sources in sources_of.values() for s in sources)
     w = irls_weights(r, settings.loss, settings.loss_scale_m)
