@@ -123,3 +123,24 @@ def test_points_off_the_local_surface_are_dropped_and_the_rest_kept():
     assert np.median(_angles_deg(fused.normals_W, np.tile([0, 0, 1.0], (len(fused), 1)))) < 2.0
     # Off: the cloud as it was.
     assert refine_fused(FusedCloud(points, colours, normals), 0.0, 2.5).points_W is points
+
+
+def test_the_batches_on_several_threads_give_what_one_thread_gives(monkeypatch):
+    """The batches run on a thread pool (each writes its own rows): a cloud of several
+    batches gives the same normals and residuals bit for bit on one thread and on four, the
+    sphere's truth holding either way."""
+    import reconstruction.surfaces.normals as normals_module
+
+    points, true_n = _sphere(0.05, 40_000, seed=3)  # five batches
+    points = points + 5e-5 * np.random.default_rng(4).standard_normal(points.shape)
+    noisy = _noisy(true_n, np.radians(8.0), seed=6)
+    runs = {}
+    for threads in (1, 4):
+        monkeypatch.setattr(normals_module, "PLANE_THREADS", threads)
+        runs[threads] = local_planes(points, noisy, 0.004)
+    assert len(points) > 4 * normals_module.BATCH
+    np.testing.assert_array_equal(runs[1].normals, runs[4].normals)
+    np.testing.assert_array_equal(runs[1].residuals_m, runs[4].residuals_m)
+    assert np.median(_angles_deg(runs[4].normals, true_n)) < 0.4 * np.median(
+        _angles_deg(noisy, true_n)
+    )
