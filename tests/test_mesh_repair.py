@@ -2,6 +2,7 @@
 
 import numpy as np
 import open3d as o3d
+import pytest
 
 from reconstruction.surfaces.topology import (
     _edge_use,
@@ -77,3 +78,42 @@ def test_canonical_order_is_one_order_for_one_geometry_and_keeps_winding():
     a.compute_triangle_normals()
     centres = np.asarray(a.vertices)[np.asarray(a.triangles)].mean(axis=1)
     assert (np.einsum("ij,ij->i", np.asarray(a.triangle_normals), centres) > 0).all()
+
+
+def test_the_edge_table_asked_again_is_the_same_triangles_table_never_a_stale_one():
+    """Finishing a mesh asks for the edge table of the same triangles several times in a row:
+    the last one is kept (per thread) and handed out read-only; triangles of the same shape
+    that differ in one index get their own table."""
+    import threading
+
+    from reconstruction.surfaces.topology import _edge_table, _edge_use
+
+    def same(a, b) -> bool:
+        return all(
+            np.array_equal(getattr(a, k), getattr(b, k)) for k in ("edges", "uses", "of_triangle")
+        )
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(0.05, 20)
+    triangles = np.asarray(sphere.triangles).copy()
+    first = _edge_use(triangles)
+    assert _edge_use(triangles.copy()) is first and same(first, _edge_table(triangles))
+    with pytest.raises(ValueError):
+        first.uses[0] = 3  # shared: nobody may change it
+    other = triangles.copy()
+    other[0, 2] = other[1, 2]  # the same shape, one corner moved
+    assert same(_edge_use(other), _edge_table(other)) and not same(_edge_use(other), first)
+    # Each thread keeps its own last table: two threads alternating two meshes get each right.
+    box = np.asarray(o3d.geometry.TriangleMesh.create_box().triangles).copy()
+    wrong = []
+
+    def ask(mine):
+        for _ in range(20):
+            if not same(_edge_use(mine), _edge_table(mine)):
+                wrong.append(mine)
+
+    threads = [threading.Thread(target=ask, args=(t,)) for t in (triangles, box)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not wrong
