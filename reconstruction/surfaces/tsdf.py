@@ -93,14 +93,14 @@ def tsdf_mesh(inputs: SurfaceInput, config: SurfaceConfig) -> SurfaceMesh:
     # The grid holds exactly the blocks the views touch. Allocated up front for a fixed 40,000
     # blocks it cost 3.3 GB of address space and 1.8 s of zero-filling per surface (with
     # colour), whatever the object; left to grow, it rehashes as it goes. The blocks come from
-    # a scratch grid (they depend on the depth map and the pose alone), the depth maps are
-    # masked again for the integration rather than all kept (5 MB each at 1280x960).
+    # a scratch grid (they depend on the depth map and the pose alone); the masked depth maps
+    # are kept for the integration (the robot/cell mask is the costly part of a view).
+    frames = [frame(view) for view in depth_views]
     scratch = _grid(names[:2], config, 1)
-    blocks = [scratch.compute_unique_block_coordinates(*frame(view), *args) for view in depth_views]
+    blocks = [scratch.compute_unique_block_coordinates(*f, *args) for f in frames]
     touched = np.unique(np.concatenate([b.numpy() for b in blocks]), axis=0)
     grid = _grid(names, config, max(len(touched), 1))
-    for view, view_blocks in zip(depth_views, blocks, strict=True):
-        depth, K, X_DW = frame(view)
+    for view, (depth, K, X_DW), view_blocks in zip(depth_views, frames, blocks, strict=True):
         if with_color:
             color = o3d.t.geometry.Image(
                 o3d.core.Tensor(np.ascontiguousarray(view.depth.color, np.float32) / 255.0)
