@@ -135,6 +135,31 @@ def test_wide_gates_on_a_share_of_the_points_end_where_all_points_do(bracket_sca
     assert len(_level_sources([view], 5000)[0]) == 3003
 
 
+def test_a_view_is_sampled_once_and_alike_whichever_views_come_before_it(bracket_scan):
+    """The fit's sampling of a view is made once per cloud and sampling (the scan's view
+    stream makes it as the view arrives) and depends on that view alone: the same sources
+    whether it is prepared first or after others, for the same fit."""
+    from reconstruction.handeye.refine import prepare_view
+
+    scan, clouds, pairs = bracket_scan
+    fit = HandEyeConfig().fine_fit
+    copies = [replace(c) for c in clouds]  # new objects: nothing prepared for them yet
+    first = prepare_view(copies[5], fit)
+    assert prepare_view(copies[5], fit) is first
+    assert len(first.source_C) == fit.max_points_per_view < len(copies[5])
+    other = replace(fit, voxel_size_m=2 * fit.voxel_size_m)
+    assert prepare_view(copies[5], other) is not first
+    again = [replace(c) for c in clouds]
+    later = [prepare_view(c, fit) for c in again][5]  # views 0-4 sampled before it
+    np.testing.assert_array_equal(later.source_C, first.source_C)
+    np.testing.assert_array_equal(later.target_C, first.target_C)
+    X_WF = [v.X_WF for v in scan.views]
+    # A fit on views prepared in advance is the fit that prepares them itself.
+    ahead = refine_on_clouds(again, X_WF, pairs, scan.X_FC_nominal, fit)
+    itself = refine_on_clouds([replace(c) for c in clouds], X_WF, pairs, scan.X_FC_nominal, fit)
+    np.testing.assert_array_equal(ahead.X_FC, itself.X_FC)
+
+
 def test_the_stated_sigma_holds_the_true_error_and_converged_claims_it(bracket_scan):
     """The fit states its accuracy from the views (delete-one-view jackknife): the true error
     lies within 3 sigma, where the formal sigma (every match independent) is far too small to

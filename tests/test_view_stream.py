@@ -144,3 +144,29 @@ def test_hidden_time_is_the_work_that_fits_in_the_next_motion():
     # View 0's work fits in the 0.3 s motion to view 1 only partly; view 1's next is a skip
     # (no motion); the last view has no motion after it.
     assert processing_hidden_s(outcomes, seconds) == pytest.approx(0.3)
+
+
+def test_the_stream_samples_each_view_for_the_hand_eye_fit(streamed_scan):
+    """With the hand-eye correction on, each streamed cloud is sampled for the fit as it is
+    filtered: the fit after the last picture finds it made, and equal to its own sampling."""
+    from dataclasses import replace
+
+    from reconstruction.handeye.refine import _prepare, _prepared, _sampling, prepare_view
+
+    scan = open_scan(streamed_scan.scan_dir)
+    processing = scan.config.processing
+    handeye = replace(processing.reconstruction.handeye, enabled=True)
+    reconstruction = replace(processing.reconstruction, handeye=handeye)
+    config = replace(scan.config, processing=replace(processing, reconstruction=reconstruction))
+    stream = ViewStream(replace(scan, config=config))
+    for index in scan.store.captured_indices():
+        stream.submit(index)
+    streamed = stream.finish()
+    fit = handeye.fine_fit
+    for s in streamed.views.values():
+        assert _sampling(fit) in _prepared[s.cloud]  # made by the stream
+        made = prepare_view(s.cloud, fit)
+        assert prepare_view(s.cloud, fit) is made
+        fresh = _prepare(s.cloud, fit)
+        np.testing.assert_array_equal(made.source_C, fresh.source_C)
+        np.testing.assert_array_equal(made.normals_C, fresh.normals_C)

@@ -12,6 +12,7 @@ import open3d as o3d
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.transforms import rotate_vectors, transform_points
+from reconstruction.common.voxels import voxel_means
 from reconstruction.registration.filtering import (
     FilteredCloud,
     o3d_cloud,
@@ -34,18 +35,17 @@ class FusedCloud:
 def fuse_clouds(
     clouds: Sequence[FilteredCloud], X_WC: Sequence[np.ndarray], voxel_size_m: float
 ) -> FusedCloud:
-    """Every view moved to W by its X_WC, merged, and voxel-averaged (normals re-normalised)."""
+    """Every view moved to W by its X_WC, merged, and voxel-averaged (normals re-normalised;
+    the cells in the order of `voxel_means`)."""
+    if not len(clouds):
+        return FusedCloud(np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros((0, 3)))
     points = np.vstack([transform_points(X, c.points_C) for c, X in zip(clouds, X_WC)])
     normals = np.vstack([rotate_vectors(X, c.normals_C) for c, X in zip(clouds, X_WC)])
-    colors = np.vstack([c.colors for c in clouds])
-    pc = o3d_cloud(points, normals, colors).voxel_down_sample(voxel_size_m)
-    n = np.asarray(pc.normals)
-    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    return FusedCloud(
-        np.asarray(pc.points).copy(),
-        np.clip(np.round(np.asarray(pc.colors) * 255), 0, 255).astype(np.uint8),
-        n,
-    )
+    # Colours averaged as Open3D averaged them (0-1), so that they round alike.
+    colors = np.vstack([c.colors for c in clouds]) / 255.0
+    points, normals, colors = voxel_means(points, voxel_size_m, normals, colors)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    return FusedCloud(points, np.clip(np.round(colors * 255), 0, 255).astype(np.uint8), normals)
 
 
 def refine_fused(fused: FusedCloud, radius_m: float, outlier_sigmas: float) -> FusedCloud:

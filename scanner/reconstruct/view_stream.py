@@ -1,5 +1,6 @@
 """Per-view work while the robot moves: stereo, cropping, robot/cell point removal and the
-outlier filter of each capture run on worker threads beside the capture loop, and pairwise ICP
+outlier filter of each capture (and its sampling for the hand-eye fit) run on worker threads
+beside the capture loop, and pairwise ICP
 of each view against the earlier views it overlaps on one more thread, in capture order
 (`reconstruction.registration.incremental`), so that the reconstruction at the end of a scan
 only optimises the pose graph, corrects the hand-eye transform and builds surfaces.
@@ -27,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from reconstruction.common.errors import ScannerError
+from reconstruction.handeye.refine import prepare_view
 from reconstruction.registration.filtering import VIEW_THREADS, FilteredCloud, filter_view
 from reconstruction.registration.incremental import ArrivingPairs
 from reconstruction.registration.views import ViewCloud
@@ -175,6 +177,10 @@ class ViewStream:
                 self._remove,
             )
             kept = cloud if len(cloud) >= self._config.filter.min_points else None
+            handeye = self._config.handeye
+            if kept is not None and handeye.enabled and handeye.refine:
+                # Sampled now for the hand-eye fit after the last picture (made once a cloud).
+                prepare_view(kept, handeye.fine_fit)
             seconds = time.perf_counter() - t0
             self._result.views[index] = StreamedView(view, q, kept, seconds)
         except ScannerError as e:
