@@ -227,8 +227,10 @@ def reconstruct_views(
         raise ScannerError("views: capture indices must be unique")
     config = inputs.config
     timer = StageTimer(on_stage=on_stage)
-    if any(m.startswith("poisson") for m in config.surfaces.methods):
-        start_solver()  # its imports run while the views are registered
+    # The solver processes' imports run while the views are registered: one for the model's
+    # Poisson surface, one for the coverage estimate's closed surface solved beside it.
+    solves = any(m.startswith("poisson") for m in config.surfaces.methods)
+    start_solver(int(solves) + int(inputs.eyes_of is not None))
     correction = CorrectionInputs(
         views=list(inputs.views),
         X_FC_nominal=X_FC_nominal,

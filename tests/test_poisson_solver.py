@@ -65,3 +65,18 @@ def test_a_dead_child_is_replaced_and_a_failed_solve_is_solved_here(no_children,
     ):
         ps.solve_poisson_apart(bad, bad, np.empty((0, 3), np.uint8), -1)
     assert "Poisson solver process failed (error: " in caplog.text
+
+
+def test_a_wider_cube_is_solved_apart_as_here_and_two_children_start_at_once(no_children):
+    points, normals, _ = _sphere()
+    no_colors = np.empty((0, 3), np.uint8)
+    ps.start_solver(2)
+    assert len(ps._idle) == 2 and all(c.poll() is None for c in ps._idle)
+    ps.start_solver(2)
+    assert len(ps._idle) == 2  # ready ones are not started again
+    wide = ps.solve_poisson_apart(points, normals, no_colors, 5, scale=2.0)
+    expected = ps.solve_poisson(points, normals, no_colors, 5, 2.0)
+    np.testing.assert_array_equal(wide.vertices, expected.vertices)
+    np.testing.assert_array_equal(wide.triangles, expected.triangles)
+    default = ps.solve_poisson(points, normals, no_colors, 5)
+    assert len(default.vertices) != len(wide.vertices)  # the scale reached the solve

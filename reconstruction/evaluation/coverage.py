@@ -31,25 +31,32 @@ from reconstruction.evaluation.metrics import (
 )
 from reconstruction.evaluation.support import SupportPlane
 from reconstruction.surfaces.fused import FusedCloud
+from reconstruction.surfaces.poisson_solver import solve_poisson_apart
 from reconstruction.surfaces.topology import triangle_components
 
 
 def closed_surface(fused: FusedCloud, poisson_depth: int = 7) -> TriangleSurface:
-    """The Poisson surface through the fused cloud, untrimmed: closed over unseen parts."""
-    import open3d as o3d
+    """The Poisson surface through the fused cloud, untrimmed: closed over unseen parts.
 
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(fused.points_W))
-    cloud.normals = o3d.utility.Vector3dVector(fused.normals_W)
-    # A box twice the data's size, so that the surface closes inside it rather than ending
-    # at the box's faces over an unseen side.
-    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-        cloud, depth=poisson_depth, scale=2.0, n_threads=1
+    Solved in the Poisson solver's process (`solve_poisson_apart`, the same result): in this
+    one Open3D would hold the GIL for the whole solve (1-4 s), stalling the model's own
+    stages, which run beside the estimate."""
+    s = solve_poisson_apart(
+        fused.points_W,
+        fused.normals_W,
+        np.zeros((0, 3), np.uint8),
+        poisson_depth,
+        # A box twice the data's size, so that the surface closes inside it rather than
+        # ending at the box's faces over an unseen side.
+        scale=2.0,
     )
     # Poisson may add detached blobs far from the data; the object is the largest component.
-    clusters, counts = triangle_components(np.asarray(mesh.triangles))
-    mesh.remove_triangles_by_mask(clusters != int(np.argmax(counts)))
-    mesh.remove_unreferenced_vertices()
-    return TriangleSurface(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
+    clusters, counts = triangle_components(s.triangles)
+    keep = clusters == int(np.argmax(counts))
+    used = np.unique(s.triangles[keep])
+    new_index = np.full(len(s.vertices), -1)
+    new_index[used] = np.arange(len(used))
+    return TriangleSurface(s.vertices[used], new_index[s.triangles[keep]])
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,9 @@ import numpy as np
 
 log = logging.getLogger("scanner.reconstruct.stages")
 
+# Open3D's own default for the solve's cube over the data's bounding cube.
+DEFAULT_SCALE = 1.1
+
 
 @dataclass(frozen=True, eq=False)
 class PoissonSolution:
@@ -37,11 +40,16 @@ class PoissonSolution:
 
 
 def solve_poisson(
-    points: np.ndarray, normals: np.ndarray, colors: np.ndarray, depth: int
+    points: np.ndarray,
+    normals: np.ndarray,
+    colors: np.ndarray,
+    depth: int,
+    scale: float = DEFAULT_SCALE,
 ) -> PoissonSolution:
     """On one thread: the multi-threaded solver sums in a varying order, so two runs on the
     same captures would give (slightly) different meshes; on two cores it was not faster
-    anyway (9.8 s against 11.7 s)."""
+    anyway (9.8 s against 11.7 s). `scale`: the solve's cube over the data's bounding cube
+    (Open3D's default 1.1; larger lets a closed surface close inside it)."""
     import open3d as o3d
 
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
@@ -50,7 +58,7 @@ def solve_poisson(
         pc.colors = o3d.utility.Vector3dVector(np.asarray(colors, np.float64) / 255.0)
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-            pc, depth=depth, n_threads=1
+            pc, depth=depth, scale=scale, n_threads=1
         )
     return PoissonSolution(
         np.asarray(mesh.vertices),
@@ -83,17 +91,18 @@ def _spawn() -> subprocess.Popen:
     )
 
 
-def start_solver() -> None:
-    """Start a child now so that it is ready when `solve_poisson_apart` needs it (none if one
-    already waits). A waiting child exits when this process exits (its stdin closes)."""
+def start_solver(count: int = 1) -> None:
+    """Start children now so that `count` are ready when `solve_poisson_apart` needs them
+    (fewer if some already wait; at most the idle limit). A waiting child exits when this
+    process exits (its stdin closes)."""
     with _lock:
         _idle[:] = [c for c in _idle if c.poll() is None]
-        if _idle:
-            return
-        try:
-            _idle.append(_spawn())
-        except OSError as e:
-            log.warning("could not start the Poisson solver process: %s", e)
+        while len(_idle) < min(count, _MAX_IDLE):
+            try:
+                _idle.append(_spawn())
+            except OSError as e:
+                log.warning("could not start the Poisson solver process: %s", e)
+                return
 
 
 def _take_solver() -> subprocess.Popen:
@@ -131,13 +140,17 @@ def _close_idle() -> None:
 
 
 def solve_poisson_apart(
-    points: np.ndarray, normals: np.ndarray, colors: np.ndarray, depth: int
+    points: np.ndarray,
+    normals: np.ndarray,
+    colors: np.ndarray,
+    depth: int,
+    scale: float = DEFAULT_SCALE,
 ) -> PoissonSolution:
     """`solve_poisson` in a child process (the same result), or here when that fails.
     `colors`: uint8 (N, 3) or empty."""
     with tempfile.TemporaryDirectory(prefix="poisson-") as tmp:
         given, solved = Path(tmp) / "in.npz", Path(tmp) / "out.npz"
-        np.savez(given, points=points, normals=normals, colors=colors, depth=depth)
+        np.savez(given, points=points, normals=normals, colors=colors, depth=depth, scale=scale)
         child = None
         try:
             child = _take_solver()
@@ -157,7 +170,7 @@ def solve_poisson_apart(
             "Poisson solver process failed (%s); solving in this process",
             answer or f"it exited with {child.returncode if child else 'no process'}",
         )
-    return solve_poisson(points, normals, colors, depth)
+    return solve_poisson(points, normals, colors, depth, scale)
 
 
 def _serve() -> None:
@@ -171,7 +184,9 @@ def _serve() -> None:
             return
         try:
             with np.load(given) as f:
-                s = solve_poisson(f["points"], f["normals"], f["colors"], int(f["depth"]))
+                s = solve_poisson(
+                    f["points"], f["normals"], f["colors"], int(f["depth"]), float(f["scale"])
+                )
             np.savez(
                 solved,
                 vertices=s.vertices,
