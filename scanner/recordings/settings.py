@@ -39,12 +39,15 @@ class RecordingProcessing:
     # as well as at a quarter (silhouette IoU 0.977 / 0.974) with half its split-half scatter
     # (0.27 / 0.56 mm), at twice the time (scripts/bench_recordings.py).
     two_view: TwoViewConfig = field(default_factory=lambda: TwoViewConfig(downscale=2.0))
-    # Each view the reference of TWO pairs (its two nearest usable partners): a pair's cloud
-    # carries its two poses' calibration error (one DTU view's clouds with different partners
-    # disagree by ~0.7 mm), which a second partner averages. Measured on DTU's scan 24, all 49
-    # views at half resolution: split-half median / p90 0.205 / 0.398 -> 0.166 / 0.297 mm,
-    # common share 0.971 -> 0.984, IoU 0.974 -> 0.979, for 1.44x the wall time (pairs and
-    # filter: 353 -> 509 s, both on a machine loaded by other work).
+    # Each view the reference of TWO pairs (its two nearest usable partners): twice the
+    # samples of the surface. Measured on DTU's scan 24, all 49 views at half resolution:
+    # split-half median / p90 0.205 / 0.398 -> 0.166 / 0.297 mm, common share 0.971 -> 0.984,
+    # IoU 0.974 -> 0.979, for 1.44x the wall time (pairs and filter: 353 -> 509 s, both on a
+    # machine loaded by other work). Not a calibration error that the second partner averages:
+    # on views 10-25 each pair's median signed distance to the other pairs' points along their
+    # normals varies by 7 um (standard deviation) from pair to pair; the split-half median
+    # there is mostly the halves' samples lying beside each other (0.15 mm in the plane, 0.09
+    # mm along the normal, of 0.198 mm).
     pairing: PairingConfig = field(default_factory=lambda: PairingConfig(pairs_per_view=2))
     reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
     table: TableConfig = field(default_factory=TableConfig)
