@@ -53,6 +53,7 @@ from reconstruction.hangings.merge import (
 from reconstruction.hangings.turntable import KnownTurns
 from reconstruction.registration.all_views import EdgeReport
 from reconstruction.registration.filtering import (
+    VIEW_THREADS,
     FilterCounts,
     FilteredCloud,
     RemovePoints,
@@ -299,8 +300,10 @@ def _place_hangings(
     clouds = filtered.clouds
     if inputs.remove_points is not None:
         # The rod and the robot once more, each view at its final pose in its hanging's frame.
-        with timer("filter"):
-            clouds = [refiltered(c, X, inputs.remove_points) for c, X in zip(clouds, final.X_WC)]
+        with timer("filter"), ThreadPoolExecutor(max_workers=VIEW_THREADS) as pool:
+            clouds = list(
+                pool.map(lambda c, X: refiltered(c, X, inputs.remove_points), clouds, final.X_WC)
+            )
     with timer("align") if len(filtered.groups) > 1 else nullcontext():
         placed = place_hangings(
             filtered.views,

@@ -85,3 +85,25 @@ def test_objects_hang_from_the_vertical_through_their_centre():
         if name != "bracket":  # the bracket's vertical through its centre meets its base plate
             np.testing.assert_allclose(p_OA[:2], 0.0, atol=1e-9)
         assert p_OA[2] <= mesh.vertices[:, 2].max() + 1e-6  # float32 ray casting
+
+
+def test_a_point_is_judged_alike_whatever_cloud_it_comes_in():
+    """The filter skips the primitives out of reach of the whole cloud: a cloud's mask is its
+    parts' masks, whether the parts lie near the arm or far from it, and from two threads."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    config = WorkcellConfig()
+    keep = make_geometry_filter(build_workcell(config, None, nominal_X_FC(), np.eye(4)), 0.01)
+    q = np.array([0.0, -0.4, 2.3, 0.0, 0.8, 0.0])
+    rng = np.random.default_rng(2)
+    # From the object out to the arm and the floor: some points near every primitive.
+    cloud = np.array(config.object_center_m) + rng.normal(size=(6000, 3)) * [0.3, 0.3, 0.4]
+    whole = keep(cloud, q)
+    assert 0 < whole.sum() < len(whole)
+    parts = np.array_split(np.arange(len(cloud)), 12)
+    with ThreadPoolExecutor(2) as pool:
+        masks = list(pool.map(lambda idx: keep(cloud[idx], q), parts))
+    np.testing.assert_array_equal(np.concatenate(masks), whole)
+    one_by_one = np.array([keep(p[None], q)[0] for p in cloud[:400]])
+    np.testing.assert_array_equal(one_by_one, whole[:400])
+    assert keep(np.zeros((0, 3)), q).shape == (0,)

@@ -107,26 +107,38 @@ def _keep_points(
     plant_context = plant.GetMyContextFromRoot(context)
     sg_context = sg.GetMyContextFromRoot(context)
     # Views are filtered on several threads (the scan's view stream): one context, so one
-    # configuration at a time.
+    # configuration at a time; the primitives' poses are read under the lock, the points are
+    # tested against them outside it.
     lock = threading.Lock()
 
-    def keep(points_W: np.ndarray, q: np.ndarray) -> np.ndarray:
+    def poses(q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         with lock:
-            return _keep(points_W, q)
+            plant.SetPositions(plant_context, workcell.robot, np.asarray(q, float))
+            query = sg.get_query_output_port().Eval(sg_context)
+            out = []
+            for prim in primitives:
+                if prim.X_WG is not None:
+                    out.append((prim.X_WG[:3, :3], prim.X_WG[:3, 3]))
+                else:
+                    X_WG = query.GetPoseInWorld(prim.geometry_id)
+                    out.append((X_WG.rotation().matrix(), X_WG.translation()))
+            return out
 
-    def _keep(points_W: np.ndarray, q: np.ndarray) -> np.ndarray:
-        plant.SetPositions(plant_context, workcell.robot, np.asarray(q, float))
-        query = sg.get_query_output_port().Eval(sg_context)
+    def keep(points_W: np.ndarray, q: np.ndarray) -> np.ndarray:
+        points_W = np.asarray(points_W, float)
         mask = np.ones(len(points_W), bool)
-        for prim in primitives:
-            if prim.X_WG is not None:
-                R, p = prim.X_WG[:3, :3], prim.X_WG[:3, 3]
-            else:
-                X_WG = query.GetPoseInWorld(prim.geometry_id)
-                R, p = X_WG.rotation().matrix(), X_WG.translation()
+        if not len(points_W):
+            return mask
+        # The cloud's bounding sphere: a primitive whose reach misses it has no point near it
+        # (most of the arm is far from the object), and its points need no test.
+        centre = 0.5 * (points_W.min(axis=0) + points_W.max(axis=0))
+        radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", points_W - centre, points_W - centre))))
+        for prim, (R, p) in zip(primitives, poses(q), strict=True):
             # Only points within the primitive's bounding sphere (+ margin) can be too close:
             # the exact distance runs on those few (the object is far from most of the arm).
             reach = _bounding_radius(prim.kind, prim.size) + margin_m
+            if np.linalg.norm(p - centre) > radius + reach + 1e-9:
+                continue
             d = points_W - p
             near = np.flatnonzero(np.einsum("ij,ij->i", d, d) < reach**2)
             if len(near):
