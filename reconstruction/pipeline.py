@@ -208,6 +208,13 @@ class ReconstructionInputs:
     earlier_alignments: Mapping[int, PassAlignment] | None = None
 
 
+def solver_processes(config: ReconstructionConfig, coverage: bool) -> int:
+    """Poisson solver processes a reconstruction uses at once: one for the model's Poisson
+    surface, one for the coverage estimate's closed surface solved beside it."""
+    poisson = any(m.startswith("poisson") for m in config.surfaces.methods)
+    return int(poisson) + int(coverage)
+
+
 def reconstruct_views(
     inputs: ReconstructionInputs, on_stage: StageListener | None = None
 ) -> ReconstructionResult:
@@ -228,10 +235,9 @@ def reconstruct_views(
         raise ScannerError("views: capture indices must be unique")
     config = inputs.config
     timer = StageTimer(on_stage=on_stage)
-    # The solver processes' imports run while the views are registered: one for the model's
-    # Poisson surface, one for the coverage estimate's closed surface solved beside it.
-    solves = any(m.startswith("poisson") for m in config.surfaces.methods)
-    start_solver(int(solves) + int(inputs.eyes_of is not None))
+    # The solver processes' imports run while the views are registered (a scan's view stream
+    # starts them earlier still).
+    start_solver(solver_processes(config, inputs.eyes_of is not None))
     correction = CorrectionInputs(
         views=list(inputs.views),
         X_FC_nominal=X_FC_nominal,

@@ -148,7 +148,8 @@ def test_hidden_time_is_the_work_that_fits_in_the_next_motion():
 
 def test_the_stream_samples_each_view_for_the_hand_eye_fit(streamed_scan):
     """With the hand-eye correction on, each streamed cloud is sampled for the fit as it is
-    filtered: the fit after the last picture finds it made, and equal to its own sampling."""
+    filtered: the fit after the last picture finds it made, and equal to its own sampling; and
+    the Poisson solver processes start with the stream."""
     from dataclasses import replace
 
     from reconstruction.handeye.refine import _prepare, _prepared, _sampling, prepare_view
@@ -158,7 +159,13 @@ def test_the_stream_samples_each_view_for_the_hand_eye_fit(streamed_scan):
     handeye = replace(processing.reconstruction.handeye, enabled=True)
     reconstruction = replace(processing.reconstruction, handeye=handeye)
     config = replace(scan.config, processing=replace(processing, reconstruction=reconstruction))
+    from reconstruction.surfaces import poisson_solver
+
+    poisson_solver._close_idle()
     stream = ViewStream(replace(scan, config=config))
+    # The solver processes the reconstruction will use started with the stream: the model's
+    # Poisson surface and the coverage estimate's closed surface.
+    assert len(poisson_solver._idle) == 2
     for index in scan.store.captured_indices():
         stream.submit(index)
     streamed = stream.finish()

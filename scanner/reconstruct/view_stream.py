@@ -29,9 +29,11 @@ import numpy as np
 
 from reconstruction.common.errors import ScannerError
 from reconstruction.handeye.refine import prepare_view
+from reconstruction.pipeline import solver_processes
 from reconstruction.registration.filtering import VIEW_THREADS, FilteredCloud, filter_view
 from reconstruction.registration.incremental import ArrivingPairs
 from reconstruction.registration.views import ViewCloud
+from reconstruction.surfaces.poisson_solver import start_solver
 from robots.sensors import sensor_named
 from scanner.configs.typed_yaml import to_dict
 from scanner.reconstruct.scan_views import (
@@ -110,6 +112,9 @@ class ViewStream:
             settings_key(scan, processing, scan.X_FC_nominal, scan.camera_model),
             arriving=ArrivingPairs(config.icp, scan.X_FC_nominal) if pairs else None,
         )
+        # The Poisson solver processes the reconstruction will use, started now: their imports
+        # (about 1 s of CPU each) then run while the robot moves, not after the last picture.
+        start_solver(solver_processes(config, coverage=True))
         self._slots = threading.BoundedSemaphore(max_pending)
         self._pool = ThreadPoolExecutor(workers, thread_name_prefix="view-stream")
         # One thread registers the views in the order they were submitted (capture order).
