@@ -32,7 +32,7 @@ from reconstruction.evaluation.metrics import (
 from reconstruction.evaluation.support import SupportPlane
 from reconstruction.surfaces.fused import FusedCloud
 from reconstruction.surfaces.poisson_solver import solve_poisson_apart
-from reconstruction.surfaces.topology import triangle_components
+from reconstruction.surfaces.topology import kept_triangles, triangle_components
 
 
 def closed_surface(fused: FusedCloud, poisson_depth: int = 7) -> TriangleSurface:
@@ -53,10 +53,7 @@ def closed_surface(fused: FusedCloud, poisson_depth: int = 7) -> TriangleSurface
     # Poisson may add detached blobs far from the data; the object is the largest component.
     clusters, counts = triangle_components(s.triangles)
     keep = clusters == int(np.argmax(counts))
-    used = np.unique(s.triangles[keep])
-    new_index = np.full(len(s.vertices), -1)
-    new_index[used] = np.arange(len(used))
-    return TriangleSurface(s.vertices[used], new_index[s.triangles[keep]])
+    return TriangleSurface(*kept_triangles(s.vertices, s.triangles, keep))
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 from skimage.measure import marching_cubes
 
 from reconstruction.common.errors import ScannerError
+from reconstruction.surfaces.topology import kept_triangles
 
 RBF_KERNELS = ("thin_plate_spline", "linear", "cubic")
 # Grid points evaluated per call to the interpolant: bounds the (chunk, neighbours) index and
@@ -129,12 +130,7 @@ def cut_to_data(
     """Triangles with a vertex farther than `max_distance_m` from every point dropped, and
     vertices no longer used."""
     d, _ = cKDTree(points).query(vertices, distance_upper_bound=max_distance_m)
-    keep = np.isfinite(d)[triangles].all(axis=1)
-    triangles = triangles[keep]
-    used = np.zeros(len(vertices), bool)
-    used[triangles] = True
-    new_index = np.cumsum(used) - 1
-    return vertices[used], new_index[triangles]
+    return kept_triangles(vertices, triangles, np.isfinite(d)[triangles].all(axis=1))
 
 
 def rbf_surface(points: np.ndarray, normals: np.ndarray, params: RbfParams) -> RbfSurface:

@@ -90,6 +90,18 @@ def _manifold_edges_keep(vertices: np.ndarray, triangles: np.ndarray) -> np.ndar
     return keep
 
 
+def kept_triangles(
+    vertices: np.ndarray, triangles: np.ndarray, keep: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles where `keep` (M,) bool, and only the vertices they use, in their order
+    (Open3D's `remove_unreferenced_vertices` on arrays)."""
+    triangles = triangles[keep]
+    used = np.zeros(len(vertices), bool)
+    used[triangles] = True
+    new_index = np.cumsum(used) - 1
+    return vertices[used], new_index[triangles]
+
+
 def triangle_components(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Connected components of triangles sharing an edge: a label per triangle (M,) and the
     triangle count of each component. (Open3D's `cluster_connected_triangles` gives the same

@@ -1,9 +1,9 @@
 """Per-view work while the robot moves: stereo, cropping, robot/cell point removal and the
 outlier filter of each capture (and its sampling for the hand-eye fit) run on worker threads
-beside the capture loop, and pairwise ICP
-of each view against the earlier views it overlaps on one more thread, in capture order
-(`reconstruction.registration.incremental`), so that the reconstruction at the end of a scan
-only optimises the pose graph, corrects the hand-eye transform and builds surfaces.
+beside the capture loop, and pairwise ICP of each view against the earlier views it overlaps on
+one more thread, in capture order (`reconstruction.registration.incremental`), so that the
+reconstruction at the end of a scan only optimises the pose graph, corrects the hand-eye
+transform and builds surfaces.
 
 The workers take each capture as it was stored (or read it back from the scan directory) and
 run exactly the functions the offline `scanner reconstruct` runs, with the scan's own camera
