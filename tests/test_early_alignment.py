@@ -1,7 +1,8 @@
-"""When a further pass's alignment is searched for during its capture (`hangings: auto`): from
-half its views on, once, not for the first pass, not for fixed hangings, not again after an
-interruption that kept it; and what is kept of it afterwards (only a verified one; a search
-that could not run leaves the search after the pass to decide)."""
+"""When a further pass's alignment is searched for during its capture: the quick models of the
+passes before it from its first view on, the search from a third of its views on (at least
+3), once, not for the first pass, not again after an interruption that kept it, with auto and
+fixed hangings alike; and what is kept of it afterwards (only a verified one; a search that
+could not run leaves the search after the pass to decide)."""
 
 from __future__ import annotations
 
@@ -28,6 +29,9 @@ class FakeAssessor:
     def __init__(self, outcome) -> None:
         self.outcome, self.asked = outcome, []
 
+    def passes_before(self, hangings, hanging, captured):
+        self.asked.append(("before", hanging, sorted(captured)))
+
     def early_alignment(self, hangings, hanging, captured):
         self.asked.append((hanging, sorted(captured)))
         if isinstance(self.outcome, Exception):
@@ -53,25 +57,25 @@ def _alignment(failures=()) -> PassAlignment:
     return PassAlignment(1, T, 0.5, 4e-4, 0.01, 0.4, 0.2, 17, tuple(failures))
 
 
-def test_it_starts_once_at_half_the_pass_and_a_verified_one_is_kept(tmp_path):
-    runner, assessor = _runner(tmp_path, _alignment())
+@pytest.mark.parametrize("hangings", ["auto", 2])
+def test_it_starts_once_at_a_third_of_the_pass_and_a_verified_one_is_kept(tmp_path, hangings):
+    runner, assessor = _runner(tmp_path, _alignment(), hangings)
     first = set(HANGINGS[0])
     runner._align_early(0, first)  # the first pass has nothing to align onto
-    runner._align_early(1, first | {6, 7})  # 2 of 6: too few
-    assert not runner.early and not assessor.asked
+    assert not runner.early_before and not assessor.asked
+    runner._align_early(1, first | {6})  # the passes before are made ready at once
+    runner._align_early(1, first | {6, 7})  # 2 of 6: too few for the search
+    assert not runner.early and assessor.asked == [("before", 1, sorted(first | {6}))]
     runner._align_early(1, first | {6, 7, 8})
     runner._align_early(1, first | {6, 7, 8, 9})  # already under way
     runner._early_alignment_done(1)
-    assert assessor.asked == [(1, sorted(first | {6, 7, 8}))]
+    assert assessor.asked[1:] == [(1, sorted(first | {6, 7, 8}))]
     kept = quick_alignments(SimpleNamespace(store=runner.store))
     np.testing.assert_array_equal(kept[1].T, _alignment().T)
     assert kept[1].ambiguity == 0.2 and kept[1].hypotheses == 17
 
 
-def test_not_for_fixed_hangings_nor_a_whole_pass_nor_again_after_an_interruption(tmp_path):
-    fixed, assessor = _runner(tmp_path / "fixed", _alignment(), hangings=2)
-    fixed._align_early(1, set(range(9)))
-    assert not fixed.early and not assessor.asked
+def test_not_for_a_whole_pass_nor_again_after_an_interruption(tmp_path):
     runner, assessor = _runner(tmp_path / "auto", _alignment())
     runner._align_early(1, set(range(12)))  # all captured: the search after the pass does it
     assert not runner.early

@@ -201,3 +201,46 @@ def test_kinematic_guess_is_target_from_source():
     np.testing.assert_allclose(
         transform_points(X_WC[0] @ X_TS, p_S), transform_points(X_WC[2], p_S), atol=1e-12
     )
+
+
+def test_a_streams_pairs_are_used_for_one_of_its_hangings_and_never_added_to(monkeypatch):
+    """A scan's quick model of its first hanging takes the pairs the stream registered while
+    the views arrived (which also holds the next hanging's views): no pair registered again,
+    the stream's record left as it was; a record without all of the hanging's views is not
+    used."""
+    import reconstruction.registration.incremental as incremental
+    from reconstruction.registration.incremental import ArrivingPairs, arrived_pairs, share_holding
+
+    scan = make_scan("pebble", directions=cap_directions(6, ROBOT_SIDE, math.radians(20.0)))
+    clouds = [
+        filter_view(v.index, v.points_C, v.colors, X, FilterConfig(roi=ROI))
+        for v in scan.views
+        for X in [v.X_WF @ scan.X_FC_nominal]
+    ]
+    icp = IcpConfig()
+    stream = ArrivingPairs(icp, scan.X_FC_nominal)
+    for k, (view, cloud) in enumerate(zip(scan.views, clouds)):
+        stream.add(view.index, 0 if k < 3 else 1, cloud, view.X_WF)
+    before = stream.arrived(), stream.pairs()
+    first = list(range(3))
+    calls = []
+    monkeypatch.setattr(incremental, "register_pair", lambda *a: calls.append(a))
+
+    used = arrived_pairs(stream, scan.views[:3], clouds[:3], [first], scan.X_FC_nominal, icp)
+    assert used is stream and not calls
+    assert stream.arrived() == before[0] and len(stream.pairs()) == len(before[1])
+    ours = {v.index for v in scan.views[:3]}
+    mine = [p for p in stream.pairs() if p.source in ours and p.target in ours]
+    assert mine and len(mine) < len(stream.pairs())  # the second hanging's pairs are there too
+    holding = share_holding(stream, ours)
+    assert holding == sum(
+        not edge_check(p.registration, p.X_TS_start, stream.pyramid(p.source).centroid_C, icp)
+        for p in mine
+    ) / len(mine)
+
+    # Four views of which the stream holds three, beside others: registered anew.
+    monkeypatch.undo()
+    views = [*scan.views[:3], scan.views[3]]
+    anew = arrived_pairs(stream, views, clouds[:4], [list(range(4))], scan.X_FC_nominal, icp)
+    assert anew is not stream and [i for i, _ in anew.arrived()] == [v.index for v in views]
+    assert stream.arrived() == before[0]

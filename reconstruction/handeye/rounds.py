@@ -173,7 +173,7 @@ def register_and_correct(
             arriving = arrived_pairs(
                 inputs.arriving, first.views, first.clouds, first.groups, first.X_FC, inputs.icp
             )
-        holding = share_holding(arriving)
+        holding = share_holding(arriving, {v.index for v in first.views})
         streamed = streamed if arriving is inputs.arriving else 0
     coarse, X_FC_start = _coarse_start(inputs, first, holding, timer)
     current = first

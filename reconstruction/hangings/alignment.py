@@ -99,16 +99,28 @@ class PassAlignment:
         return not self.failures
 
 
-def prepared_features(points: np.ndarray, voxel: float):
+def prepared_cloud(points: np.ndarray, voxel: float):
+    """The points on a grid of `voxel`, with normals over 2.5 voxels (Open3D)."""
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     down = cloud.voxel_down_sample(voxel)
     down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel, max_nn=30))
-    features = o3d.pipelines.registration.compute_fpfh_feature(
+    return down
+
+
+def fpfh_features(down, voxel: float):
+    """FPFH features of a `prepared_cloud` over 5 voxels."""
+    import open3d as o3d
+
+    return o3d.pipelines.registration.compute_fpfh_feature(
         down, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
     )
-    return down, features
+
+
+def prepared_features(points: np.ndarray, voxel: float):
+    down = prepared_cloud(points, voxel)
+    return down, fpfh_features(down, voxel)
 
 
 def feature_hypotheses(source, target, src_f, tgt_f, config: AlignmentConfig) -> list[np.ndarray]:
@@ -284,8 +296,10 @@ def align_pass(
     fails or slides away from it."""
     from scipy.spatial import cKDTree
 
-    source, src_f = prepared_features(points, config.voxel_m)
-    target, tgt_f = prepared_features(reference, config.voxel_m)
+    # The features only where the search runs: a known turn or an earlier alignment that
+    # verifies is refined without them.
+    source = prepared_cloud(points, config.voxel_m)
+    target = prepared_cloud(reference, config.voxel_m)
     tree = cKDTree(reference)
     textured = colors is not None and reference_colors is not None
     grey = np.asarray(colors, float).mean(axis=1) if textured else np.zeros(len(points))
@@ -328,6 +342,7 @@ def align_pass(
                 from_earlier=True,
             )
         candidates.append(again)
+    src_f, tgt_f = fpfh_features(source, config.voxel_m), fpfh_features(target, config.voxel_m)
     starts = feature_hypotheses(source, target, src_f, tgt_f, config)
     textured_score = None
     if textured:

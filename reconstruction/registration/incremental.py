@@ -15,7 +15,7 @@ captured: a scan reconstructed from its files gives the model its streamed run g
 from __future__ import annotations
 
 import threading
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -155,32 +155,43 @@ def arrived_pairs(
     """`arriving` brought up to every view (list positions grouped by hanging in `groups`) in
     capture order. A new one when `arriving` is None, was made with another X_FC or ICP
     setting, or holds views, hangings or clouds that are not the first ones of that order
-    (the streamed views are then not what this run reconstructs)."""
+    (the streamed views are then not what this run reconstructs). An `arriving` that also
+    holds other views (a scan's stream, of which this run takes one hanging) is used as it is
+    when it holds all of these, in this order: it is never added to then."""
     indices = [v.index for v in views]
     hanging = {k: h for h, group in enumerate(groups) for k in group}
     expected = [
         (indices[k], hanging[k]) for k in arrival_order([v.stamp_s for v in views], indices)
     ]
     position = {index: k for k, index in enumerate(indices)}
+    arrived = [] if arriving is None else arriving.arrived()
+    mine = [a for a in arrived if a[0] in position]
     if (
         arriving is None
         or arriving.icp != icp
         or not np.array_equal(arriving.X_FC, X_FC)
-        or arriving.arrived() != expected[: len(arriving.arrived())]
-        or not all(arriving.holds(i, clouds[position[i]]) for i, _ in arriving.arrived())
+        or mine != expected[: len(mine)]
+        or (len(mine) < len(arrived) and len(mine) < len(expected))
+        or not all(arriving.holds(i, clouds[position[i]]) for i, _ in mine)
     ):
         arriving = ArrivingPairs(icp, X_FC)
-    for index, h in expected[len(arriving.arrived()) :]:
+        mine = []
+    for index, h in expected[len(mine) :]:
         k = position[index]
         arriving.add(index, h, clouds[k], views[k].X_WF)
     return arriving
 
 
-def share_holding(arriving: ArrivingPairs) -> float | None:
-    """The share of registered pairs that pass their edge checks at the guess they started
-    from (None: none registered): near 1 when the mount the pairs started at is within ICP's
-    reach, low when it is far off."""
-    done = [p for p in arriving.pairs() if p.registration is not None]
+def share_holding(arriving: ArrivingPairs, among: Collection[int] | None = None) -> float | None:
+    """The share of registered pairs (between views `among`, by capture index; None: all) that
+    pass their edge checks at the guess they started from (None: none registered): near 1 when
+    the mount the pairs started at is within ICP's reach, low when it is far off."""
+    done = [
+        p
+        for p in arriving.pairs()
+        if p.registration is not None
+        and (among is None or (p.source in among and p.target in among))
+    ]
     if not done:
         return None
     holding = sum(

@@ -83,13 +83,14 @@ class HangingAssessor:
 
     def _views(self, indices: list[int]):
         """The hanging's views and their filtered clouds (the streamed ones where the scan
-        streamed them), and the filter of the rod and robot."""
+        streamed them), the filter of the rod and robot, and the pairs the stream registered."""
         scan = self.scan
         processing = scan.config.processing
         config = with_roi_centre(processing.reconstruction, np.array(scan.config.scan_center_m))
-        ready, done = {}, {}
+        ready, done, arriving = {}, {}, None
         if self.stream is not None:
-            streamed = self.stream.so_far().views
+            so_far = self.stream.so_far()
+            streamed, arriving = so_far.views, so_far.arriving
             ready = {i: (streamed[i].view, streamed[i].q_rad) for i in indices if i in streamed}
             done = {i: streamed[i].cloud for i in ready if streamed[i].cloud is not None}
         X_FC, stereo = scan.X_FC_nominal, scan.camera_model
@@ -100,10 +101,10 @@ class HangingAssessor:
             scan.config, X_FC, stereo, captured.joints, processing.remove_margin_m
         )
         views, clouds, _ = filter_views(captured.views, X_FC, config.filter, remove, done)
-        return views, clouds, remove, config
+        return views, clouds, remove, config, arriving
 
     def _quick(self, indices: list[int]) -> QuickPass:
-        views, clouds, remove, config = self._views(indices)
+        views, clouds, remove, config, arriving = self._views(indices)
         if self.X_FC is None:
             # The first hanging's views correct the mount (ICP, pose graph, hand-eye) as the
             # final reconstruction will: the mount is the same in every hanging, and at the
@@ -116,6 +117,8 @@ class HangingAssessor:
                     config=replace(config, surfaces=replace(config.surfaces, methods=())),
                     remove_points=remove,
                     filtered={c.index: c for c in clouds},
+                    # The pairs the scan registered as the views arrived: not registered again.
+                    arriving=arriving,
                 )
             )
             self.X_FC = corrected.X_FC
@@ -207,6 +210,15 @@ class HangingAssessor:
             earlier=earlier,
         )
 
+    def passes_before(self, hangings: list[list[int]], hanging: int, captured: set[int]) -> None:
+        """The quick models of the passes before `hanging` (their `captured` views), each
+        aligned onto those before it; those made already are kept."""
+        for h in range(hanging):
+            if h not in self.passes:
+                self.passes[h] = self._quick([i for i in hangings[h] if i in captured])
+            if h not in self.T:
+                self._align(h)
+
     def early_alignment(
         self, hangings: list[list[int]], hanging: int, captured: set[int]
     ) -> PassAlignment:
@@ -214,11 +226,7 @@ class HangingAssessor:
         before it (their whole quick models, made and aligned here when not yet): the search
         for hypotheses, run while the rest of the pass is captured, so that after its last
         picture the alignment is only refined."""
-        for h in range(hanging):
-            if h not in self.passes:
-                self.passes[h] = self._quick([i for i in hangings[h] if i in captured])
-            if h not in self.T:
-                self._align(h)
+        self.passes_before(hangings, hanging, captured)
         partial = self._quick([i for i in hangings[hanging] if i in captured])
         return self._aligned(hanging, partial, None)
 

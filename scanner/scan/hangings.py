@@ -90,6 +90,7 @@ class HangingRunner:
         # Each further pass's alignment searched for on its first views, while the rest are
         # captured (`_align_early`); one thread, beside the scan's own.
         self.early: dict[int, Future] = {}
+        self.early_before: dict[int, Future] = {}  # the quick models of the passes before
         # (wall, CPU seconds) when the last capture was stored: the wait for the model starts.
         self.last_capture: tuple[float, float] | None = None
         self._early_pool: ThreadPoolExecutor | None = None
@@ -319,20 +320,18 @@ class HangingRunner:
             return _run_machine(machine, self.store)
 
     def _align_early(self, hanging: int, captured: set[int]) -> None:
-        """Once a further pass has half its views (and at least EARLY_MIN_VIEWS), its
-        alignment onto the passes before it is searched for in the background on those views;
-        after the pass, the verified one is kept for the auto decision and the reconstruction
-        to refine, so that the search does not run after the last picture."""
-        # Only where the passes before it have their quick models anyway (`hangings: auto`):
-        # made here, the first pass's (with its mount correction) cost more than the search
-        # it hides (two fixed hangings of 24 views: 31 s waited for the model, 41 s with it).
-        if not self.config.auto_hangings:
-            return
+        """Once a further pass has its first view, the passes before it get their quick models
+        in the background (made after each pass anyway with `hangings: auto`); once it has a
+        third of its views (and at least EARLY_MIN_VIEWS), its alignment onto them is searched
+        for on those views. After the pass the verified one is kept for the auto decision and
+        the reconstruction to refine, so that the search does not run after the last picture.
+        (Both reuse the pairs the stream registered as the views arrived; the first pass's
+        quick model corrects the mount on them.)"""
         if hanging == 0 or hanging in self.early or self.stream is None:
             return
         planned = self.hangings[hanging]
         got = [i for i in planned if i in captured]
-        if len(got) < max(EARLY_MIN_VIEWS, len(planned) // 2) or len(got) == len(planned):
+        if not got or len(got) == len(planned):
             return
         if str(hanging) in (self.store.read_manifest().get("quick_alignments") or {}):
             return  # found before an interruption
@@ -341,6 +340,15 @@ class HangingRunner:
         if self._early_pool is None:
             self._early_pool = ThreadPoolExecutor(1, thread_name_prefix="early-alignment")
         hangings = [list(h) for h in self.hangings]
+        if hanging not in self.early_before:
+            self.early_before[hanging] = self._early_pool.submit(
+                self.assessor.passes_before, hangings, hanging, set(captured)
+            )
+        # From a third on, not half: on two cores beside the simulated cameras the search
+        # started at half was still running 4-5 s after the last picture.
+        if len(got) < max(EARLY_MIN_VIEWS, len(planned) // 3):
+            return
+        # The pool runs one job at a time: the search starts once the models before are made.
         self.early[hanging] = self._early_pool.submit(
             self.assessor.early_alignment, hangings, hanging, set(captured)
         )
@@ -348,6 +356,14 @@ class HangingRunner:
 
     def _early_alignment_done(self, hanging: int) -> None:
         """Wait for the pass's early alignment and keep it when it verified."""
+        before = self.early_before.get(hanging)
+        if before is not None:
+            try:
+                with self.timer("early_alignment_wait"):
+                    before.result()  # the assessor is used by this thread next
+            except ScannerError as e:
+                # The decision after the pass, or the reconstruction, makes them again.
+                log.info("pass %d: no quick models of the passes before it (%s)", hanging + 1, e)
         future = self.early.get(hanging)
         if future is None:
             return
