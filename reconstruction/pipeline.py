@@ -230,14 +230,27 @@ def reconstruct_views(
         ScannerError: fewer usable views than `config.min_views`, or (RefusedResultError) a
             hanging whose alignment fails its verification, unless `leave_out_unaligned`."""
     X_FC_nominal = check_pose(inputs.X_FC_nominal, "X_FC_nominal")
-    indices = [v.index for v in inputs.views]
-    if len(set(indices)) != len(indices):
-        raise ScannerError("views: capture indices must be unique")
     config = inputs.config
     timer = StageTimer(on_stage=on_stage)
     # The solver processes' imports run while the views are registered (a scan's view stream
     # starts them earlier still).
     start_solver(solver_processes(config, inputs.eyes_of is not None))
+    corrected = corrected_views(inputs, timer)
+    final = final_poses(corrected, X_FC_nominal, config, timer)
+    placed = _place_hangings(inputs, corrected.filtered, final, timer)
+    return _surfaces(inputs, X_FC_nominal, corrected, final, placed, timer)
+
+
+def corrected_views(
+    inputs: ReconstructionInputs, timer: StageTimer | None = None
+) -> CorrectedViews:
+    """The reconstruction's first steps alone: the views filtered, registered and the mount
+    corrected (what a scan's quick model needs of it; no surfaces)."""
+    X_FC_nominal = check_pose(inputs.X_FC_nominal, "X_FC_nominal")
+    indices = [v.index for v in inputs.views]
+    if len(set(indices)) != len(indices):
+        raise ScannerError("views: capture indices must be unique")
+    config, timer = inputs.config, timer or StageTimer()
     correction = CorrectionInputs(
         views=list(inputs.views),
         X_FC_nominal=X_FC_nominal,
@@ -251,10 +264,7 @@ def reconstruct_views(
         arriving=inputs.arriving,
     )
     first = filter_step(correction, X_FC_nominal, timer, inputs.filtered)
-    corrected = register_and_correct(correction, first, timer)
-    final = final_poses(corrected, X_FC_nominal, config, timer)
-    placed = _place_hangings(inputs, corrected.filtered, final, timer)
-    return _surfaces(inputs, X_FC_nominal, corrected, final, placed, timer)
+    return register_and_correct(correction, first, timer)
 
 
 @dataclass(frozen=True, eq=False)

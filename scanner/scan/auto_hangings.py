@@ -22,7 +22,7 @@ from reconstruction.evaluation.coverage import SeenSurface, seen_surface
 from reconstruction.evaluation.metrics import SurfaceSamples, TriangleSurface
 from reconstruction.hangings.alignment import PassAlignment, align_pass
 from reconstruction.hangings.free_space import SeenSpace
-from reconstruction.pipeline import ReconstructionInputs, reconstruct_views
+from reconstruction.pipeline import ReconstructionInputs, corrected_views
 from reconstruction.registration.filtering import filter_views, o3d_cloud, refiltered
 from reconstruction.surfaces.fixture import without_fixture
 from reconstruction.surfaces.fused import FusedCloud, fuse_clouds
@@ -110,11 +110,11 @@ class HangingAssessor:
             # final reconstruction will: the mount is the same in every hanging, and at the
             # nominal one each view is up to a centimetre off, which blurs a quick model too
             # much to align the next hanging onto it.
-            corrected = reconstruct_views(
+            corrected = corrected_views(
                 ReconstructionInputs(
                     views=views,
                     X_FC_nominal=self.scan.X_FC_nominal,
-                    config=replace(config, surfaces=replace(config.surfaces, methods=())),
+                    config=config,
                     remove_points=remove,
                     filtered={c.index: c for c in clouds},
                     # The pairs the scan registered as the views arrived: not registered again.
