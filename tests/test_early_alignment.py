@@ -92,3 +92,24 @@ def test_an_unverified_or_impossible_early_search_keeps_nothing(tmp_path, outcom
     runner._align_early(1, set(range(9)))
     runner._early_alignment_done(1)
     assert assessor.asked and quick_alignments(SimpleNamespace(store=runner.store)) == {}
+
+
+def test_a_scan_that_stops_drops_the_search_not_yet_started(tmp_path):
+    import threading
+
+    runner, assessor = _runner(tmp_path, _alignment(), hangings=2)
+    started, release = threading.Event(), threading.Event()
+
+    def slow_before(hangings, hanging, captured):
+        started.set()
+        release.wait(10)
+        assessor.asked.append(("before", hanging, sorted(captured)))
+
+    assessor.passes_before = slow_before
+    runner._align_early(1, set(range(9)))  # the models before, then the search, queued
+    assert started.wait(10) and not runner.early[1].done()
+    runner._stop_early()  # the scan ends (stopped) while the models before are made
+    release.set()
+    assert runner.early[1].cancelled()
+    runner.early_before[1].result(timeout=10)  # the one under way ends on its own
+    assert assessor.asked == [("before", 1, list(range(9)))]

@@ -106,6 +106,12 @@ class HangingRunner:
         after a hanging scanned again); with `hangings: auto`, more hangings while the model is
         not complete."""
         self.hangings = [list(h) for h in hangings]
+        try:
+            return self._passes(first)
+        finally:
+            self._stop_early()
+
+    def _passes(self, first: int) -> RunSummary:
         summaries = []
         hanging = first
         self.world = self.presentation.begin(self.world, first)
@@ -353,6 +359,14 @@ class HangingRunner:
             self.assessor.early_alignment, hangings, hanging, set(captured)
         )
         log.info("pass %d: aligning it from its first %d views meanwhile", hanging + 1, len(got))
+
+    def _stop_early(self) -> None:
+        """The background work of a scan that ends (stopped, or a pass that never finished):
+        what has not started is dropped; a search under way ends on its own (the process
+        waits for it when it exits), its result unused: a resume searches again."""
+        if self._early_pool is not None:
+            self._early_pool.shutdown(wait=False, cancel_futures=True)
+            self._early_pool = None
 
     def _early_alignment_done(self, hanging: int) -> None:
         """Wait for the pass's early alignment and keep it when it verified."""
