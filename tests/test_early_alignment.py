@@ -1,6 +1,6 @@
 """When a further pass's alignment is searched for during its capture: the quick models of the
-passes before it from its first view on, the search from a third of its views on (at least
-3), once, not for the first pass, not again after an interruption that kept it, with auto and
+passes before it from the end of the pass before (or its first view after a resume), the search
+from a third of its views on (at least 3), once, not for the first pass, not again after an interruption that kept it, with auto and
 fixed hangings alike; and what is kept of it afterwards (only a verified one; a search that
 could not run leaves the search after the pass to decide)."""
 
@@ -62,10 +62,12 @@ def test_it_starts_once_at_a_third_of_the_pass_and_a_verified_one_is_kept(tmp_pa
     runner, assessor = _runner(tmp_path, _alignment(), hangings)
     first = set(HANGINGS[0])
     runner._align_early(0, first)  # the first pass has nothing to align onto
+    runner._prepare_early(2, first)  # there is no third pass
     assert not runner.early_before and not assessor.asked
-    runner._align_early(1, first | {6})  # the passes before are made ready at once
+    runner._prepare_early(1, first)  # the first pass ended: the models before the second
+    runner._align_early(1, first | {6})  # made ready once
     runner._align_early(1, first | {6, 7})  # 2 of 6: too few for the search
-    assert not runner.early and assessor.asked == [("before", 1, sorted(first | {6}))]
+    assert not runner.early and assessor.asked == [("before", 1, sorted(first))]
     runner._align_early(1, first | {6, 7, 8})
     runner._align_early(1, first | {6, 7, 8, 9})  # already under way
     runner._early_alignment_done(1)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import CancelledError, Future, ThreadPoolExecutor
 from contextlib import suppress
 
 import numpy as np
@@ -90,7 +90,8 @@ class HangingRunner:
         # Each further pass's alignment searched for on its first views, while the rest are
         # captured (`_align_early`); one thread, beside the scan's own.
         self.early: dict[int, Future] = {}
-        self.early_before: dict[int, Future] = {}  # the quick models of the passes before
+        # The quick models of the passes before each pass (None once waited for).
+        self.early_before: dict[int, Future | None] = {}
         # (wall, CPU seconds) when the last capture was stored: the wait for the model starts.
         self.last_capture: tuple[float, float] | None = None
         self._early_pool: ThreadPoolExecutor | None = None
@@ -138,6 +139,7 @@ class HangingRunner:
             self._early_alignment_done(hanging)
             if self.config.auto_hangings and hanging == len(self.hangings) - 1:
                 self._after_hanging(hanging)
+            self._prepare_early(hanging + 1, set(self.store.captured_indices()))
             hanging += 1
         return _combined(summaries)
 
@@ -326,18 +328,37 @@ class HangingRunner:
             return _run_machine(machine, self.store)
 
     def _align_early(self, hanging: int, captured: set[int]) -> None:
-        """Once a further pass has its first view, the passes before it get their quick models
-        in the background (made after each pass anyway with `hangings: auto`); once it has a
-        third of its views (and at least EARLY_MIN_VIEWS), its alignment onto them is searched
-        for on those views. After the pass the verified one is kept for the auto decision and
-        the reconstruction to refine, so that the search does not run after the last picture.
+        """The passes before a further pass get their quick models in the background from the
+        end of the pass before it (`_prepare_early`; made after each pass anyway with
+        `hangings: auto`); once the pass has a third of its views (and at least
+        EARLY_MIN_VIEWS), its alignment onto them is searched for on those views. After the
+        pass the verified one is kept for the auto decision and the reconstruction to refine,
+        so that the search does not run after the last picture.
         (Both reuse the pairs the stream registered as the views arrived; the first pass's
         quick model corrects the mount on them.)"""
-        if hanging == 0 or hanging in self.early or self.stream is None:
+        self._prepare_early(hanging, captured)
+        if hanging not in self.early_before or hanging in self.early:
             return
         planned = self.hangings[hanging]
         got = [i for i in planned if i in captured]
-        if not got or len(got) == len(planned):
+        # From a third on, not half: on two cores beside the simulated cameras the search
+        # started at half was still running 4-5 s after the last picture.
+        if len(got) < max(EARLY_MIN_VIEWS, len(planned) // 3) or len(got) == len(planned):
+            return
+        # The pool runs one job at a time: the search starts once the models before are made.
+        hangings = [list(h) for h in self.hangings]
+        self.early[hanging] = self._early_pool.submit(
+            self.assessor.early_alignment, hangings, hanging, set(captured)
+        )
+        log.info("pass %d: aligning it from its first %d views meanwhile", hanging + 1, len(got))
+
+    def _prepare_early(self, hanging: int, captured: set[int]) -> None:
+        """The quick models of the passes before `hanging` started in the background, once:
+        at the end of the pass before it (while the object is presented anew), or at its first
+        view after a resume."""
+        if hanging == 0 or hanging >= len(self.hangings) or self.stream is None:
+            return
+        if hanging in self.early_before or set(self.hangings[hanging]) <= captured:
             return
         if str(hanging) in (self.store.read_manifest().get("quick_alignments") or {}):
             return  # found before an interruption
@@ -346,19 +367,9 @@ class HangingRunner:
         if self._early_pool is None:
             self._early_pool = ThreadPoolExecutor(1, thread_name_prefix="early-alignment")
         hangings = [list(h) for h in self.hangings]
-        if hanging not in self.early_before:
-            self.early_before[hanging] = self._early_pool.submit(
-                self.assessor.passes_before, hangings, hanging, set(captured)
-            )
-        # From a third on, not half: on two cores beside the simulated cameras the search
-        # started at half was still running 4-5 s after the last picture.
-        if len(got) < max(EARLY_MIN_VIEWS, len(planned) // 3):
-            return
-        # The pool runs one job at a time: the search starts once the models before are made.
-        self.early[hanging] = self._early_pool.submit(
-            self.assessor.early_alignment, hangings, hanging, set(captured)
+        self.early_before[hanging] = self._early_pool.submit(
+            self.assessor.passes_before, hangings, hanging, set(captured)
         )
-        log.info("pass %d: aligning it from its first %d views meanwhile", hanging + 1, len(got))
 
     def _stop_early(self) -> None:
         """The background work of a scan that ends (stopped, or a pass that never finished):
@@ -370,14 +381,18 @@ class HangingRunner:
 
     def _early_alignment_done(self, hanging: int) -> None:
         """Wait for the pass's early alignment and keep it when it verified."""
-        before = self.early_before.get(hanging)
-        if before is not None:
+        # Every one started (a pass found captured already after a resume is skipped, its
+        # job not): the assessor is used by this thread next.
+        for h, before in self.early_before.items():
+            if before is None:
+                continue  # waited for already
             try:
                 with self.timer("early_alignment_wait"):
-                    before.result()  # the assessor is used by this thread next
-            except ScannerError as e:
+                    before.result()
+            except (ScannerError, CancelledError) as e:
                 # The decision after the pass, or the reconstruction, makes them again.
-                log.info("pass %d: no quick models of the passes before it (%s)", hanging + 1, e)
+                log.info("pass %d: no quick models of the passes before it (%s)", h + 1, e)
+            self.early_before[h] = None
         future = self.early.get(hanging)
         if future is None:
             return
