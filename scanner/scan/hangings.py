@@ -7,13 +7,12 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from concurrent.futures import CancelledError, Future, ThreadPoolExecutor
 from contextlib import suppress
 
 import numpy as np
 
 from planners.tour import Tour, plan_tour
-from reconstruction.common.errors import ScannerError, StorageError
+from reconstruction.common.errors import StorageError
 from reconstruction.common.stage_timer import cpu_seconds
 from robots.drivers.staubli_val3 import RobotStoppedError
 from robots.simulation.truth import record_hung_pose
@@ -24,6 +23,7 @@ from scanner.reconstruct.scan_views import model_so_far
 from scanner.reconstruct.view_stream import ViewStream, with_stream
 from scanner.scan.auto_hangings import HangingAssessor, decide
 from scanner.scan.decision import DecisionMaker, FixedViewList, RunSummary
+from scanner.scan.early_alignment import EarlyAlignments
 from scanner.scan.next_best_view import CoverageModel
 from scanner.scan.presentation import presentation_for
 from scanner.scan.viewpoints import planned_view
@@ -34,9 +34,6 @@ from scanner.scan_dir.quick_alignments import record_quick_alignments
 from scanner.scan_dir.views import PlannedView
 
 log = logging.getLogger("scanner.scan.hangings")
-
-# The fewest views of a pass its early alignment is searched on.
-EARLY_MIN_VIEWS = 3
 
 
 def _decision_maker(
@@ -88,13 +85,10 @@ class HangingRunner:
         self.assessor: HangingAssessor | None = None
         self.presentation = presentation_for(config, store)
         # Each further pass's alignment searched for on its first views, while the rest are
-        # captured (`_align_early`); one thread, beside the scan's own.
-        self.early: dict[int, Future] = {}
-        # The quick models of the passes before each pass (None once waited for).
-        self.early_before: dict[int, Future | None] = {}
+        # captured; one thread, beside the scan's own.
+        self.early = EarlyAlignments(store, stream is not None, self._assessor, timer)
         # (wall, CPU seconds) when the last capture was stored: the wait for the model starts.
         self.last_capture: tuple[float, float] | None = None
-        self._early_pool: ThreadPoolExecutor | None = None
 
     def request_abort(self) -> None:
         self.abort_requested = True
@@ -110,7 +104,7 @@ class HangingRunner:
         try:
             return self._passes(first)
         finally:
-            self._stop_early()
+            self.early.stop()
 
     def _passes(self, first: int) -> RunSummary:
         summaries = []
@@ -136,10 +130,10 @@ class HangingRunner:
             summaries += self._extra_views(hanging)
             if self._aborted(summaries):
                 break
-            self._early_alignment_done(hanging)
+            self.early.done(hanging)
             if self.config.auto_hangings and hanging == len(self.hangings) - 1:
                 self._after_hanging(hanging)
-            self._prepare_early(hanging + 1, set(self.store.captured_indices()))
+            self.early.prepare(self.hangings, hanging + 1, set(self.store.captured_indices()))
             hanging += 1
         return _combined(summaries)
 
@@ -157,6 +151,12 @@ class HangingRunner:
         self.store.update_manifest(hanging=hanging, pending_rehang=None, **again)
         log.info("presented the object (%s) for pass %d", self.presentation.kind, hanging + 1)
 
+    def _assessor(self) -> HangingAssessor:
+        """The scan's quick models, made on first use (after a resume too)."""
+        if self.assessor is None:
+            self.assessor = HangingAssessor(open_scan(self.store.root), self.stream)
+        return self.assessor
+
     def _after_hanging(self, hanging: int) -> None:
         """Estimate what the hangings so far have seen; below the target, plan the next
         hanging and record the instruction (the loop then asks for it)."""
@@ -164,11 +164,9 @@ class HangingRunner:
         journal = list(manifest.get("hanging_log", []))
         if any(entry["hanging"] == hanging + 1 for entry in journal):
             return  # decided before an interruption: the pending re-hang stands
-        if self.assessor is None:
-            self.assessor = HangingAssessor(open_scan(self.store.root), self.stream)
         with self.timer("coverage_check"):
             captured = set(self.store.captured_indices())
-            assessment = self.assessor.assess(self.hangings, hanging, captured)
+            assessment = self._assessor().assess(self.hangings, hanging, captured)
         # The reconstruction refines these rather than searching for them again.
         record_quick_alignments(self.store, list(self.assessor.alignments.values()))
         coverage = [entry["coverage_after"] for entry in journal] + [assessment.fraction]
@@ -319,99 +317,13 @@ class HangingRunner:
             captured = self.store.captured_indices()
             if self.progress:
                 self.progress(len(captured), total)
-            self._align_early(hanging, set(captured))
+            self.early.on_capture(self.hangings, hanging, set(captured))
 
         if self.progress:
             self.progress(len(done), total)
         machine.on_view_done = view_done
         with self.timer("capture"):
             return _run_machine(machine, self.store)
-
-    def _align_early(self, hanging: int, captured: set[int]) -> None:
-        """The passes before a further pass get their quick models in the background from the
-        end of the pass before it (`_prepare_early`; made after each pass anyway with
-        `hangings: auto`); once the pass has a third of its views (and at least
-        EARLY_MIN_VIEWS), its alignment onto them is searched for on those views. After the
-        pass the verified one is kept for the auto decision and the reconstruction to refine,
-        so that the search does not run after the last picture.
-        (Both reuse the pairs the stream registered as the views arrived; the first pass's
-        quick model corrects the mount on them.)"""
-        self._prepare_early(hanging, captured)
-        if hanging not in self.early_before or hanging in self.early:
-            return
-        planned = self.hangings[hanging]
-        got = [i for i in planned if i in captured]
-        # From a third on, not half: on two cores beside the simulated cameras the search
-        # started at half was still running 4-5 s after the last picture.
-        if len(got) < max(EARLY_MIN_VIEWS, len(planned) // 3) or len(got) == len(planned):
-            return
-        # The pool runs one job at a time: the search starts once the models before are made.
-        hangings = [list(h) for h in self.hangings]
-        self.early[hanging] = self._early_pool.submit(
-            self.assessor.early_alignment, hangings, hanging, set(captured)
-        )
-        log.info("pass %d: aligning it from its first %d views meanwhile", hanging + 1, len(got))
-
-    def _prepare_early(self, hanging: int, captured: set[int]) -> None:
-        """The quick models of the passes before `hanging` started in the background, once:
-        at the end of the pass before it (while the object is presented anew), or at its first
-        view after a resume."""
-        if hanging == 0 or hanging >= len(self.hangings) or self.stream is None:
-            return
-        if hanging in self.early_before or set(self.hangings[hanging]) <= captured:
-            return
-        if str(hanging) in (self.store.read_manifest().get("quick_alignments") or {}):
-            return  # found before an interruption
-        if self.assessor is None:  # a resumed scan: the decision after the pass makes it too
-            self.assessor = HangingAssessor(open_scan(self.store.root), self.stream)
-        if self._early_pool is None:
-            self._early_pool = ThreadPoolExecutor(1, thread_name_prefix="early-alignment")
-        hangings = [list(h) for h in self.hangings]
-        self.early_before[hanging] = self._early_pool.submit(
-            self.assessor.passes_before, hangings, hanging, set(captured)
-        )
-
-    def _stop_early(self) -> None:
-        """The background work of a scan that ends (stopped, or a pass that never finished):
-        what has not started is dropped; a search under way ends on its own (the process
-        waits for it when it exits), its result unused: a resume searches again."""
-        if self._early_pool is not None:
-            self._early_pool.shutdown(wait=False, cancel_futures=True)
-            self._early_pool = None
-
-    def _early_alignment_done(self, hanging: int) -> None:
-        """Wait for the pass's early alignment and keep it when it verified."""
-        # Every one started (a pass found captured already after a resume is skipped, its
-        # job not): the assessor is used by this thread next.
-        for h, before in self.early_before.items():
-            if before is None:
-                continue  # waited for already
-            try:
-                with self.timer("early_alignment_wait"):
-                    before.result()
-            except (ScannerError, CancelledError) as e:
-                # The decision after the pass, or the reconstruction, makes them again.
-                log.info("pass %d: no quick models of the passes before it (%s)", h + 1, e)
-            self.early_before[h] = None
-        future = self.early.get(hanging)
-        if future is None:
-            return
-        try:
-            with self.timer("early_alignment_wait"):
-                alignment = future.result()
-        except ScannerError as e:
-            # Too little of the pass to align yet: the alignment after the pass searches.
-            log.info("pass %d: no early alignment (%s)", hanging + 1, e)
-            return
-        if alignment.verified:
-            record_quick_alignments(self.store, [alignment])
-        else:
-            log.info(
-                "pass %d: its first views did not align verifiably (%s); it is searched for "
-                "again after the pass",
-                hanging + 1,
-                "; ".join(alignment.failures),
-            )
 
 
 def _combined(summaries: list[RunSummary]) -> RunSummary:
