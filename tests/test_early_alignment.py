@@ -63,7 +63,7 @@ def test_it_starts_once_at_a_third_of_the_pass_and_a_verified_one_is_kept(tmp_pa
     early.on_capture(HANGINGS, 1, first | {6, 7, 8})
     early.on_capture(HANGINGS, 1, first | {6, 7, 8, 9})  # already under way
     early.done(1)
-    assert assessor.asked[1:] == [(1, sorted(first | {6, 7, 8}))]
+    assert assessor.asked == [("before", 1, sorted(first)), (1, sorted(first | {6, 7, 8}))]
     kept = quick_alignments(SimpleNamespace(store=early.store))
     np.testing.assert_array_equal(kept[1].T, _alignment().T)
     assert kept[1].ambiguity == 0.2 and kept[1].hypotheses == 17
