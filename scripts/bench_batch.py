@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
+from reconstruction.common.memory import keep_freed_memory
 from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.reconstruct.batch import run_batch
 from scanner.reconstruct.command import ReconstructOptions, reconstruct_one
@@ -53,6 +54,7 @@ def _same(a: Path, b: Path, report_a: dict, report_b: dict) -> bool:
 
 
 def main() -> None:
+    keep_freed_memory()  # as the command line does
     parser = argparse.ArgumentParser()
     parser.add_argument("--scan-root", type=Path, default=None, help="reuse/keep scans here")
     parser.add_argument("--scans", type=int, default=4)

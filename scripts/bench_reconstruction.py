@@ -21,6 +21,7 @@ from pathlib import Path
 
 from benchmark_data import MESHES, add_scan_options, mesh_scan, require
 
+from reconstruction.common.memory import keep_freed_memory
 from reconstruction.common.stage_timer import cpu_seconds
 from reconstruction.config import VARIANTS, variant_config
 from reconstruction.evaluation.metrics import HANDEYE_ERROR_KEYS, SURFACE_METRIC_KEYS
@@ -59,6 +60,7 @@ def _variants(scan_dir: Path, names, out: Path) -> dict:
 
 
 def main() -> None:
+    keep_freed_memory()  # as the command line does
     parser = argparse.ArgumentParser()
     add_scan_options(
         parser, "keep the scans here (one folder per object) and reuse them on the next run"

@@ -23,6 +23,7 @@ import tempfile
 from pathlib import Path
 
 from planners.planner import Trajectory
+from reconstruction.common.memory import keep_freed_memory
 from reconstruction.common.stage_timer import cpu_seconds
 from scanner.configs.scan import ScanConfig, with_overrides
 from scanner.scan.run import run_scan
@@ -48,6 +49,7 @@ def naive_order_motion_s(config: ScanConfig, scan_dir: Path) -> float:
 
 
 def main() -> None:
+    keep_freed_memory()  # as the command line does
     parser = argparse.ArgumentParser()
     parser.add_argument("--views", type=int, default=24)
     parser.add_argument("--object", default="vase")

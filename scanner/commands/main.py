@@ -9,6 +9,7 @@ import importlib
 import sys
 
 from reconstruction.common.errors import ScannerError
+from reconstruction.common.memory import keep_freed_memory
 from scanner.commands.arguments import ScannerArgumentParser
 from scanner.commands.calibrate_arguments import add_calibrate_parser
 from scanner.commands.cell import add_check_cell_parser, add_emulate_parser
@@ -99,6 +100,7 @@ def _quiet_libraries() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    keep_freed_memory()
     parser = build_parser()
     args = parser.parse_args(argv)
     _quiet_libraries()
