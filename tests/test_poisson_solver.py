@@ -80,3 +80,19 @@ def test_a_wider_cube_is_solved_apart_as_here_and_two_children_start_at_once(no_
     np.testing.assert_array_equal(wide.triangles, expected.triangles)
     default = ps.solve_poisson(points, normals, no_colors, 5)
     assert len(default.vertices) != len(wide.vertices)  # the scale reached the solve
+
+
+def test_a_solve_whose_parent_is_gone_leaves_no_folder_behind(no_children, tmp_path):
+    """A parent killed during a solve never removes the request's folder: the child does."""
+    points, normals, colors = _sphere()
+    folder = tmp_path / "poisson-request"
+    folder.mkdir()
+    given, solved = folder / "in.npz", folder / "out.npz"
+    np.savez(given, points=points, normals=normals, colors=colors, depth=5, scale=ps.DEFAULT_SCALE)
+    child = ps._spawn()
+    child.stdin.write(f"{given}\n{solved}\n")
+    child.stdin.flush()
+    child.stdout.close()  # nobody reads the answer ...
+    child.stdin.close()  # ... and no request follows
+    assert child.wait(timeout=120) == 0
+    assert not folder.exists()

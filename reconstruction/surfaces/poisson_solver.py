@@ -13,6 +13,7 @@ from __future__ import annotations
 import atexit
 import logging
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -175,32 +176,45 @@ def solve_poisson_apart(
 
 def _serve() -> None:
     """The child: import what the solve needs, then solve each pair of paths read from stdin
-    (input, output), answering `ok` or `error: ...` on stdout; exit when stdin closes."""
+    (input, output), answering `ok` or `error: ...` on stdout; exit when stdin closes.
+
+    The parent removes each request's folder once it has read the answer. A parent that was
+    killed (SIGKILL, out of memory) never does: the child removes the last request's folder
+    when it finds its parent gone, so a killed scan leaves no solve behind in the temporary
+    directory."""
     from reconstruction.common.memory import keep_freed_memory
 
     keep_freed_memory()  # also when the parent did not: its solves are the largest arrays
     import open3d  # noqa: F401  (the slow import, done before the work arrives)
 
-    while True:
-        given, solved = sys.stdin.readline().strip(), sys.stdin.readline().strip()
-        if not given or not solved:
-            return
-        try:
-            with np.load(given) as f:
-                s = solve_poisson(
-                    f["points"], f["normals"], f["colors"], int(f["depth"]), float(f["scale"])
-                )
-            np.savez(
-                solved,
-                vertices=s.vertices,
-                triangles=s.triangles,
-                colors=s.colors,
-                density=s.density,
+    last = None
+    try:
+        while True:
+            given, solved = sys.stdin.readline().strip(), sys.stdin.readline().strip()
+            if not given or not solved:
+                return
+            last = Path(given).parent
+            print(_solve_files(given, solved), flush=True)
+    except BrokenPipeError:  # the parent is gone: nobody reads the answer
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # exit quietly
+    finally:
+        if last is not None:
+            shutil.rmtree(last, ignore_errors=True)  # already gone when the parent read it
+
+
+def _solve_files(given: str, solved: str) -> str:
+    """One request: the solve of the input .npz written to the output .npz; the answer line."""
+    try:
+        with np.load(given) as f:
+            s = solve_poisson(
+                f["points"], f["normals"], f["colors"], int(f["depth"]), float(f["scale"])
             )
-            answer = "ok"
-        except Exception as e:  # noqa: BLE001  (reported to the parent, which solves itself)
-            answer = f"error: {type(e).__name__}: {e}".replace("\n", " ")
-        print(answer, flush=True)
+        np.savez(
+            solved, vertices=s.vertices, triangles=s.triangles, colors=s.colors, density=s.density
+        )
+        return "ok"
+    except Exception as e:  # noqa: BLE001  (reported to the parent, which solves itself)
+        return f"error: {type(e).__name__}: {e}".replace("\n", " ")
 
 
 if __name__ == "__main__":
