@@ -59,8 +59,8 @@ LONGEST_FIRST = (
 
 
 def pytest_configure(config):
-    """Each worker keeps freed memory as the command line does (its in-process scans and
-    reconstructions are most of the suite; 547.7 -> 522.5 s measured side by side)."""
+    """Each worker keeps freed memory as the command line does, so that its in-process scans
+    and reconstructions (most of the suite) run as a user's would."""
     from reconstruction.common.memory import keep_freed_memory
 
     keep_freed_memory()
