@@ -80,13 +80,20 @@ def main() -> None:
     parser.add_argument("--seeds", default="0")
     parser.add_argument("--passes", type=hangings_arg, default="auto")
     parser.add_argument("--presentation", choices=("turntable", "table"), default="turntable")
+    parser.add_argument(
+        "--scan-root",
+        type=Path,
+        default=None,
+        help="keep each case's scan directory under this folder (OBJECT-SEED)",
+    )
     args = parser.parse_args()
     require(MESHES, "bench_presentation")
     cases = []
     with tempfile.TemporaryDirectory() as tmp:
+        root = args.scan_root or Path(tmp)
         for name in args.objects.split(","):
             for seed in (int(s) for s in args.seeds.split(",")):
-                out = Path(tmp) / f"{name}-{seed}"
+                out = root / f"{name}-{seed}"
                 case = _case(name, seed, out, args.passes, "instructed", args.presentation)
                 cases.append(_record(case))
                 print(json.dumps(cases[-1]), file=sys.stderr, flush=True)

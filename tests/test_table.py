@@ -190,6 +190,53 @@ def test_the_next_best_face_lays_the_object_on_its_top_to_show_its_underside():
     assert choice.gain > 0.1
 
 
+def test_the_person_turns_the_side_asked_for_towards_the_robot_by_eye():
+    from robots.simulation.laying import MAX_YAW_ERROR_RAD, laid_pose
+
+    cell = WorkcellConfig()
+    mesh = _box_mesh(0.16, 0.1, 0.04)
+    X_now = lying_pose(cell, np.eye(3), mesh.vertices, np.zeros(3))
+    toward_robot = np.array([-1.0, 0.0, 0.0])
+    headings = []
+    for seed in range(6):
+        # Laid on its +x end, the side now facing +y turned towards the robot.
+        X = laid_pose(cell, mesh, X_now, np.array([1.0, 0, 0]), seed, 1, np.array([0, 1.0, 0]))
+        np.testing.assert_allclose(X[:3, :3] @ [1.0, 0, 0], -UP, atol=1e-9)
+        side = X[:3, :3] @ [0, 1.0, 0]
+        headings.append(math.atan2(np.cross(toward_robot, side)[2], toward_robot @ side))
+    # By eye: within the person's error, and not the same every time.
+    assert max(abs(h) for h in headings) <= MAX_YAW_ERROR_RAD + 1e-9
+    assert np.ptp(headings) > math.radians(5)
+
+
+def test_the_next_best_face_turns_the_unseen_side_towards_cameras_on_one_side():
+    from robots.simulation.laying import laid_pose
+    from scanner.scan.presentation.next_face import next_best_face
+
+    cell = WorkcellConfig()
+    mesh = _box_mesh(0.12, 0.1, 0.08)
+    X_now = lying_pose(cell, np.eye(3), mesh.vertices, np.zeros(3))
+    centre = X_now[:3, 3]
+    # The cameras stand on the robot's side only (as the arm sees a support), low: all but
+    # the side facing away from the robot (+x) was seen, and it shows only if it is turned
+    # towards them.
+    elevation = math.radians(5)
+    d = np.array(
+        [
+            [math.cos(elevation) * math.cos(a), math.cos(elevation) * math.sin(a), 0.09]
+            for a in np.radians(np.linspace(150, 210, 5))
+        ]
+    )
+    seen = _seen_box(centre, lambda n: n[:, 0] < 0.5)
+    choice = next_best_face(seen, centre, 0.5, d)
+    # All of the unseen side (a sixth of the samples) is expected to show, not a yaw's share.
+    assert choice.gain == pytest.approx(1 / 6, abs=0.01)
+    for seed in range(3):
+        X = laid_pose(cell, mesh, X_now, choice.down_W, seed, 1, choice.toward_W)
+        unseen_side = X[:3, :3] @ [1.0, 0, 0]
+        assert max(d @ unseen_side) > 0.5  # faces a camera squarely, at the person's error
+
+
 class _Person:
     """A driver's request_rehang: what the person was told."""
 

@@ -21,7 +21,8 @@ from scanner.scan.world import ScanWorld
 def lay(config: ScanConfig, world: ScanWorld, index: int, asked: dict, viewer=None) -> ScanWorld:
     """The world once the object lies as `asked` (`down_W`: the side, of the object as it
     lies now, to put underneath; `words`: what the person is told) on the support for pass
-    `index`: the simulated person lays it (robots/simulation/laying.py), hardware asks one."""
+    `index`: the simulated person lays it (robots/simulation/laying.py), hardware asks one.
+    `toward_W` (optional): the side, as it lies now, to turn towards the robot."""
     if world.sim is not None:
         X_WO = laid_pose(
             config.cell,
@@ -30,6 +31,7 @@ def lay(config: ScanConfig, world: ScanWorld, index: int, asked: dict, viewer=No
             np.asarray(asked["down_W"], float),
             config.error_model.seed,
             index,
+            None if "toward_W" not in asked else np.asarray(asked["toward_W"], float),
         )
         return world.with_object_at(X_WO, viewer)
     if world.hardware is None or world.hardware.request_rehang is None:
@@ -62,6 +64,7 @@ def face_request(
     )
     return {
         "down_W": [float(x) for x in choice.down_W],
+        "toward_W": [float(x) for x in choice.toward_W],
         "touch_W": [float(x) for x in choice.touch_W],
         "face": face_words(choice.down_W),
         "face_probability": choice.probability,

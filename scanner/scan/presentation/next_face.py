@@ -3,9 +3,12 @@ most of what the passes so far have not.
 
 The same coverage machinery as the next-best hanging (`scanner.scan.next_hanging`): laying the
 object on the face with outward normal n (of the model as it lies now) turns it by R, the
-smallest turn that takes n down, then by a yaw nobody controls; for the cameras that is turning
-them by R^T about the centre, and a candidate's gain is the share of the closed model's unseen
-samples the pass's cameras would see after it, averaged over yaws. Unlike a hanging, only the
+smallest turn that takes n down, then by a yaw about the vertical; for the cameras that is
+turning them by R^T about the centre, and a candidate's gain is the share of the closed model's
+unseen samples the pass's cameras would see after it. The person is told which side to turn
+towards the robot (the best yaw for the face), and turns it so by eye: the gain is averaged over
+yaws within that error. The arm sees a lying object from above and from its own side, so the
+yaw decides whether an unseen side faces the cameras or away. Unlike a hanging, only the
 faces the model can rest on are candidates: its hull's faces that hold its centre of mass
 (reconstruction/hangings/resting_poses.py), computed on the closed model so far; and the face
 laid down is hidden from that pass by the support it lies on, whatever the views.
@@ -23,7 +26,7 @@ from reconstruction.common.transforms import rotation_about
 from reconstruction.evaluation.coverage import SeenSurface
 from reconstruction.evaluation.support import SupportPlane
 from reconstruction.hangings.resting_poses import centre_of_mass, resting_poses
-from scanner.scan.next_hanging import UP, YAWS, side_name, unseen_sight
+from scanner.scan.next_hanging import UP, side_name, unseen_sight
 
 # A face whose edge is this close to the centre of mass tips over at a nudge: a person laying
 # the object puts it down a few millimetres off, and the model so far is a few off itself.
@@ -33,18 +36,24 @@ MIN_MARGIN_M = 0.005
 MAX_FACES = 16
 # A face within this of the one underneath now is where the object lies already.
 SAME_FACE_RAD = math.radians(20.0)
+# Yaws tried for each face, and how far off the asked heading a person turns the object by eye.
+YAW_STEPS = 36
+PERSON_YAW_ERROR_RAD = math.radians(20.0)
+TOWARD_ROBOT = np.array([-1.0, 0.0, 0.0])  # the robot stands at the origin, the object along +x
 
 
 @dataclass(frozen=True, eq=False)
 class FaceChoice:
-    """Lay the object on the side facing `down_W` now (unit, cell frame of the pass now); its
-    face's centre `touch_W` touches the table; `gain`: the expected share of the closed model
-    newly seen; `probability`: how often the model lands on that face when dropped."""
+    """Lay the object on the side facing `down_W` now (unit, cell frame of the pass now), with
+    the side facing `toward_W` now turned towards the robot; its face's centre `touch_W`
+    touches the table; `gain`: the expected share of the closed model newly seen (over the
+    person's yaw error); `probability`: how often the model lands on that face when dropped."""
 
     down_W: np.ndarray
     touch_W: np.ndarray
     gain: float
     probability: float
+    toward_W: np.ndarray
 
 
 def next_best_face(
@@ -52,10 +61,13 @@ def next_best_face(
     centre_W: Sequence[float],
     radius_m: float,
     view_directions: np.ndarray,
-    yaws: int = YAWS,
+    yaws: int = YAW_STEPS,
+    yaw_error_rad: float = PERSON_YAW_ERROR_RAD,
 ) -> FaceChoice | None:
-    """The stable face of the closed model to lay it on next (the same view directions, unit,
-    from the centre); None when nothing is unseen or the model rests on no other face."""
+    """The stable face of the closed model to lay it on next, and the side to turn towards the
+    robot (the same view directions, unit, from the centre; `yaws` headings tried, each scored
+    over headings within `yaw_error_rad`); None when nothing is unseen or the model rests on
+    no other face."""
     sight = unseen_sight(seen, centre_W, radius_m)
     if sight is None:
         return None
@@ -68,19 +80,38 @@ def next_best_face(
         # rolls onto the stable one nearest.
         poses = [p for p in resting_poses(v, com) if not _lies_on(p)]
     d = np.asarray(view_directions, float).reshape(-1, 3)
+    step = 2 * math.pi / yaws
+    within = int(yaw_error_rad // step)
     best: FaceChoice | None = None
     for pose in poses[:MAX_FACES]:
         R = pose.R_TO()
         # The face laid down touches the support: hidden from the pass, whatever it faces.
         support = SupportPlane(pose.centre_O, -pose.down_O)
-        gain = sum(
-            sight.gain(d, rotation_about(UP, 2 * math.pi * j / yaws) @ R, support)
-            for j in range(yaws)
+        gains = np.array(
+            [sight.gain(d, rotation_about(UP, j * step) @ R, support) for j in range(yaws)]
         )
-        gain /= yaws
-        if best is None or gain > best.gain:
-            best = FaceChoice(pose.down_O.copy(), pose.centre_O.copy(), gain, pose.probability)
+        # What a person turning it by eye gets: the headings within the error, alike.
+        expected = _around(gains, within)
+        # Of headings alike, the middle of them: a person's larger slip still shows it, and
+        # the cameras see it squarely rather than grazing.
+        alike = expected >= expected.max() - 1e-3
+        j = int(np.argmax(np.where(alike, _around(gains, 2 * within), -1.0)))
+        if best is None or expected[j] > best.gain:
+            # The side that faces the robot once laid at heading j, as the object lies now.
+            toward = R.T @ rotation_about(UP, -j * step) @ TOWARD_ROBOT
+            best = FaceChoice(
+                pose.down_O.copy(),
+                pose.centre_O.copy(),
+                float(expected[j]),
+                pose.probability,
+                toward,
+            )
     return best
+
+
+def _around(gains: np.ndarray, within: int) -> np.ndarray:
+    """Per heading (a ring of them), the mean gain of those within `within` steps."""
+    return np.mean([np.roll(gains, k) for k in range(-within, within + 1)], axis=0)
 
 
 def _lies_on(pose) -> bool:
@@ -109,5 +140,6 @@ def lay_instruction(
         f"pass {index + 1}: turn the object by about {turn_deg(choice.down_W):.0f} deg and lay "
         f"it on the {support} on {face_words(choice.down_W)}: the point now at x {p[0]:.3f}, "
         f"y {p[1]:.3f}, z {p[2]:.3f} m touches the {support}; put it down in the middle of the "
-        f"{support}, at any turn about the vertical{seen_in}; then confirm"
+        f"{support}, turned so that {face_words(choice.toward_W)} faces the robot{seen_in}; "
+        "then confirm"
     )
