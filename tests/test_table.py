@@ -237,6 +237,19 @@ def test_the_next_best_face_turns_the_unseen_side_towards_cameras_on_one_side():
         assert max(d @ unseen_side) > 0.5  # faces a camera squarely, at the person's error
 
 
+def test_the_request_to_lay_it_says_which_side_faces_the_robot(tmp_path):
+    from scanner.scan.presentation.laying import face_request
+    from scanner.scan.presentation.next_face import next_best_face
+
+    centre = np.array([0.7, 0.0, 0.15])
+    seen = _seen_box(centre, lambda n: n[:, 2] > -0.5)
+    choice = next_best_face(seen, centre, 0.5, _around(math.radians(50)))
+    request = face_request(seen, choice, centre, 1, tmp_path)
+    np.testing.assert_allclose(request["toward_W"], choice.toward_W)
+    assert "faces the robot" in request["words"]
+    assert (tmp_path / request["picture"]).stat().st_size > 10_000
+
+
 class _Person:
     """A driver's request_rehang: what the person was told."""
 

@@ -25,9 +25,11 @@ def write_rehang_picture(
     hanging: int,
     path: Path,
     heading: str | None = None,
+    toward_W: np.ndarray | None = None,
 ) -> None:
     """The picture for pass `hanging` (0-based) in the cell frame of the object as it hangs
-    (`heading`: another instruction for the arrow and the star, as a table's "lay it on")."""
+    (`heading`: another instruction for the arrow and the star, as a table's "lay it on";
+    `toward_W`: a second, orange arrow, the side to turn towards the robot)."""
     p, c = seen.samples.points, np.asarray(centre_W, float)
     rng = np.random.default_rng(0)
     pick = rng.choice(len(p), min(MAX_POINTS, len(p)), replace=False)
@@ -43,12 +45,17 @@ def write_rehang_picture(
         ax.scatter(p[~unseen, i], p[~unseen, j], s=0.3, color="0.6", label="seen")
         ax.scatter(p[unseen, i], p[unseen, j], s=0.6, color="tab:red", label="not seen yet")
         tip = c + 1.3 * radius * np.asarray(up_W)
-        ax.annotate(
-            "",
-            xy=(tip[i], tip[j]),
-            xytext=(c[i], c[j]),
-            arrowprops=dict(arrowstyle="-|>", color="tab:blue", lw=2),
-        )
+        arrows = [(tip, "tab:blue")]
+        if toward_W is not None:
+            arrows.append((c + 1.3 * radius * np.asarray(toward_W), "tab:orange"))
+        for end, color in arrows:
+            ax.annotate(
+                "",
+                xy=(end[i], end[j]),
+                xytext=(c[i], c[j]),
+                arrowprops=dict(arrowstyle="-|>", color=color, lw=2),
+            )
+            ax.update_datalim([(end[i], end[j])])
         ax.plot(clamp_W[i], clamp_W[j], marker="*", markersize=16, color="tab:green")
         # The arrow lies partly outside the model: let the axes take it in.
         ax.update_datalim([(tip[i], tip[j]), (c[i], c[j])])

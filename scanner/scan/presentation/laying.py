@@ -57,10 +57,18 @@ def face_request(
     name = f"lay_{index + 1}.png"
     heading = (
         f"Pass {index + 1}: lay the object on the side the blue arrow points to (the green "
-        f"star touches the {support}); red: not seen yet"
+        f"star touches the {support}), the orange arrow's side towards the robot; red: not "
+        "seen yet"
     )
     write_rehang_picture(
-        seen, choice.down_W, choice.touch_W, centre_W, index, scan_root / name, heading
+        seen,
+        choice.down_W,
+        choice.touch_W,
+        centre_W,
+        index,
+        scan_root / name,
+        heading,
+        choice.toward_W,
     )
     return {
         "down_W": [float(x) for x in choice.down_W],
