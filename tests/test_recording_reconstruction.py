@@ -66,6 +66,8 @@ def test_the_model_agrees_with_the_masks_it_did_not_use(even_masks):
     # Measured 0.63 mm median on 93 % of the points: a quarter-resolution pixel is 0.9 mm.
     h = r["split_half"]
     assert h["common_share"] > 0.85 and h["median_mm"] < 0.9
+    # Along the other half's surface normal the samplings' spacing drops out: nearer.
+    assert 0.0 < h["normal_median_mm"] < h["median_mm"] and h["normal_p90_mm"] < h["p90_mm"]
     folder = even_masks.results_dir
     assert json.loads((folder / "report.json").read_text())["split_half"] == h
     for name in ("fused_cloud.ply", "mesh_poisson.ply", "summary.md", "reconstruction.yaml"):

@@ -57,3 +57,30 @@ def test_an_empty_half_or_a_bad_radius_is_a_user_error():
         split_half_agreement(cloud, np.zeros((0, 3)), 1e-3)
     with pytest.raises(ScannerError, match="common_radius_m"):
         split_half_agreement(cloud, cloud, 0.0)
+
+
+def test_along_the_normal_two_samplings_of_one_plane_agree_where_nearest_points_do_not():
+    # The same plane sampled by two grids half a pitch apart, noise free: nearest neighbours
+    # lie 0.71 pitch apart, the surfaces not at all.
+    grid = _grid(np.arange(60) * PITCH_M, np.arange(60) * PITCH_M)
+    odd = grid + np.array([0.5 * PITCH_M, 0.5 * PITCH_M, 0.0])
+    result = split_half_agreement(grid, odd, common_radius_m=PITCH_M)
+    assert result.median_m == pytest.approx(np.sqrt(0.5) * PITCH_M, rel=1e-6)
+    assert result.normal_median_m == pytest.approx(0.0, abs=1e-12)
+    # A known offset of one half along the normal is the normal distance, wherever it samples.
+    result = split_half_agreement(grid, odd + np.array([0.0, 0.0, 0.05e-3]), PITCH_M)
+    assert result.normal_median_m == pytest.approx(0.05e-3, rel=1e-6)
+    assert result.normal_p90_m == pytest.approx(0.05e-3, rel=1e-6)
+
+
+def test_along_the_normal_noisy_halves_give_one_halfs_noise_and_the_others_plane_fit():
+    rng = np.random.default_rng(1)
+    grid = _grid(np.arange(150) * PITCH_M, np.arange(150) * PITCH_M)
+    even, odd = grid.copy(), grid + np.array([0.5 * PITCH_M, 0.0, 0.0])
+    even[:, 2] = rng.normal(0.0, SIGMA_M, len(grid))
+    odd[:, 2] = rng.normal(0.0, SIGMA_M, len(grid))
+    result = split_half_agreement(even, odd, common_radius_m=PITCH_M)
+    # A point's own noise (sigma) and the 12-point plane's error at it (about sigma / sqrt(12)
+    # at its centre, more off it): the median lies between sqrt(2) * 0.6745 sigma
+    # (the nearest point's) and 0.6745 sigma (a perfect plane).
+    assert 0.6745 * SIGMA_M < result.normal_median_m < np.sqrt(2) * 0.6745 * SIGMA_M

@@ -15,6 +15,11 @@ farther than `common_radius_m` is a part that half did not see (or an outlier), 
 measures coverage, not precision; the share of points in the common part reports that instead.
 The radius must exceed the scatter (a few sigma) and stay below the size of what one half may
 miss alone.
+
+The nearest neighbour mixes two things: how far the halves' surfaces lie apart, and how far
+two samplings of one surface lie beside each other (about half the spacing, whatever the
+precision). The distance along the other half's surface normal (a plane through the point's
+nearest `NORMAL_NEIGHBOURS` there) keeps the first alone; both are given.
 """
 
 from __future__ import annotations
@@ -27,25 +32,51 @@ from scipy.spatial import cKDTree
 from reconstruction.common.errors import ScannerError
 from reconstruction.common.kdtree import query_workers
 
+# Neighbours of the other half that fit its local plane: enough to average its noise, few
+# enough to stay on one side of an edge at the halves' spacing.
+NORMAL_NEIGHBOURS = 12
+# Points whose normal distance is computed at a time (their neighbours: 12 x 3 doubles each).
+CHUNK = 200_000
+
 
 @dataclass(frozen=True)
 class SplitHalf:
     """Nearest-neighbour distances between the halves on their common part (metres): median and
     90th percentile over both directions' points; common_share: the share of all points of both
-    halves that lie in the common part."""
+    halves that lie in the common part. normal_median_m / normal_p90_m: the same points'
+    distances along the other half's local surface normal."""
 
     median_m: float
     p90_m: float
     common_share: float
+    normal_median_m: float = float("nan")
+    normal_p90_m: float = float("nan")
 
 
-def _distances_m(points_W: np.ndarray, other_W: np.ndarray, radius_m: float) -> np.ndarray:
+def _distances_m(
+    points_W: np.ndarray, other_W: np.ndarray, radius_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per point, the distance to the nearest point of `other_W` (inf beyond `radius_m`: not
+    in the common part) and to the plane of its nearest neighbours there (nan beyond)."""
     tree = cKDTree(other_W)
+    workers = query_workers(len(points_W))
     # Beyond the radius the distance is not needed: the point is outside the common part.
-    d, _ = tree.query(
-        points_W, k=1, distance_upper_bound=radius_m, workers=query_workers(len(points_W))
-    )
-    return d
+    d, _ = tree.query(points_W, k=1, distance_upper_bound=radius_m, workers=workers)
+    along = np.full(len(points_W), np.nan)
+    common = np.flatnonzero(d <= radius_m)
+    k = min(NORMAL_NEIGHBOURS, len(other_W))
+    if k < 3:
+        return d, along
+    for start in range(0, len(common), CHUNK):
+        rows = common[start : start + CHUNK]
+        _, idx = tree.query(points_W[rows], k=k, workers=workers)
+        nb = other_W[idx.reshape(len(rows), k)]
+        centre = nb.mean(axis=1)
+        spread = nb - centre[:, None, :]
+        # The plane's normal: the least-spread direction of the neighbours.
+        normal = np.linalg.eigh(np.einsum("nki,nkj->nij", spread, spread))[1][:, :, 0]
+        along[rows] = np.abs(np.einsum("ni,ni->n", points_W[rows] - centre, normal))
+    return d, along
 
 
 def split_half_agreement(
@@ -63,14 +94,20 @@ def split_half_agreement(
         raise ScannerError(
             f"split_half_agreement: common_radius_m must be > 0, got {common_radius_m}"
         )
-    d = np.concatenate(
-        [_distances_m(even, odd, common_radius_m), _distances_m(odd, even, common_radius_m)]
+    (d_even, n_even), (d_odd, n_odd) = (
+        _distances_m(even, odd, common_radius_m),
+        _distances_m(odd, even, common_radius_m),
     )
+    d, along = np.concatenate([d_even, d_odd]), np.concatenate([n_even, n_odd])
     common = d <= common_radius_m
     if not common.any():
         return SplitHalf(float("nan"), float("nan"), 0.0)
+    normal = along[common]
+    normal = normal[np.isfinite(normal)]
     return SplitHalf(
         median_m=float(np.median(d[common])),
         p90_m=float(np.percentile(d[common], 90)),
         common_share=float(np.count_nonzero(common) / len(d)),
+        normal_median_m=float(np.median(normal)) if len(normal) else float("nan"),
+        normal_p90_m=float(np.percentile(normal, 90)) if len(normal) else float("nan"),
     )

@@ -96,7 +96,13 @@ def _split_half(paired: PairedClouds, result, settings: RecordingProcessing, foo
     return {
         "median_mm": round(1e3 * s.median_m, 4) if math.isfinite(s.median_m) else None,
         "p90_mm": round(1e3 * s.p90_m, 4) if math.isfinite(s.p90_m) else None,
+        "normal_median_mm": _mm(s.normal_median_m),
+        "normal_p90_mm": _mm(s.normal_p90_m),
         "common_share": round(s.common_share, 4),
         "common_radius_mm": round(1e3 * common_m, 4),
         "voxel_mm": round(1e3 * voxel_m, 4),
     }
+
+
+def _mm(value_m: float) -> float | None:
+    return round(1e3 * value_m, 4) if math.isfinite(value_m) else None

@@ -124,7 +124,10 @@ def write_recording_summary(report: dict, out: Path) -> Path:
             "## Split-half agreement (fused points of even vs odd reference views)",
             "",
             f"- {h['median_mm']} mm median, {h['p90_mm']} mm p90 on the common part "
-            f"({100 * h['common_share']:.1f} % of the points within {h['common_radius_mm']} mm).",
+            f"({100 * h['common_share']:.1f} % of the points within {h['common_radius_mm']} mm); "
+            f"along the other half's surface normal {h.get('normal_median_mm')} mm median, "
+            f"{h.get('normal_p90_mm')} mm p90 (the nearest point adds the two samplings' "
+            "spacing).",
             "",
         ]
     picture = report.get("outputs", {}).get("colour_picture")

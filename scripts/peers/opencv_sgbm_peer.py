@@ -308,6 +308,8 @@ def main() -> None:
         "split_half": {
             "median_mm": round(halves.median_m * 1e3, 4),
             "p90_mm": round(halves.p90_m * 1e3, 4),
+            "normal_median_mm": round(halves.normal_median_m * 1e3, 4),
+            "normal_p90_mm": round(halves.normal_p90_m * 1e3, 4),
             "common_share": round(halves.common_share, 4),
             "common_radius_mm": COMMON_RADIUS_M * args.downscale * 1e3,
             "points_even": len(even),
