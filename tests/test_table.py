@@ -237,6 +237,24 @@ def test_the_next_best_face_turns_the_unseen_side_towards_cameras_on_one_side():
         assert max(d @ unseen_side) > 0.5  # faces a camera squarely, at the person's error
 
 
+def test_the_next_best_face_keeps_enough_seen_surface_in_view_to_align_the_pass(monkeypatch):
+    import scanner.scan.presentation.next_face as next_face
+
+    centre = np.array([0.7, 0.0, 0.15])
+    # The top and the +x end seen: laid on that end, the pass would show the most new surface
+    # but see little of what the pass before saw, too little to align it on.
+    seen = _seen_box(centre, lambda n: (n[:, 2] > 0.5) | (n[:, 0] > 0.5))
+    views = _around(math.radians(50))
+    choice = next_face.next_best_face(seen, centre, 0.5, views)
+    assert choice.overlap >= next_face.MIN_PASS_OVERLAP and choice.gain > 0.4
+    assert choice.score == pytest.approx(choice.gain)
+    # Scored by the new surface alone, the seen end would go down and the overlap be small.
+    monkeypatch.setattr(next_face, "MIN_PASS_OVERLAP", 1e-9)
+    greedy = next_face.next_best_face(seen, centre, 0.5, views)
+    np.testing.assert_allclose(greedy.down_W, [1.0, 0.0, 0.0], atol=1e-9)
+    assert greedy.gain > choice.gain and greedy.overlap < 0.25
+
+
 def test_the_request_to_lay_it_says_which_side_faces_the_robot(tmp_path):
     from scanner.scan.presentation.laying import face_request
     from scanner.scan.presentation.next_face import next_best_face

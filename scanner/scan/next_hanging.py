@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -80,11 +80,30 @@ def unseen_sight(
 ) -> UnseenSight | None:
     """What the grid's cameras at `radius_m` from the centre would see of what is unseen; None
     when nothing is unseen."""
-    unseen = ~seen.seen
-    if not unseen.any():
+    return _sight(seen, ~seen.seen, centre_W, radius_m)
+
+
+def seen_sight(
+    seen: SeenSurface, centre_W: Sequence[float], radius_m: float, samples: int = 4000
+) -> UnseenSight | None:
+    """The same of what was seen, on at most `samples` of those samples (`total`: their
+    count, so that a share of it scales to all seen samples); None when nothing was seen."""
+    index = np.flatnonzero(seen.seen)
+    if len(index) > samples:
+        index = np.sort(np.random.default_rng(0).choice(index, samples, replace=False))
+    mask = np.zeros(len(seen.seen), bool)
+    mask[index] = True
+    sight = _sight(seen, mask, centre_W, radius_m)
+    return None if sight is None else replace(sight, total=len(index))
+
+
+def _sight(
+    seen: SeenSurface, which: np.ndarray, centre_W: Sequence[float], radius_m: float
+) -> UnseenSight | None:
+    if not which.any():
         return None
     c = np.asarray(centre_W, float)
-    subset = SurfaceSamples(seen.samples.points[unseen], seen.samples.normals[unseen])
+    subset = SurfaceSamples(seen.samples.points[which], seen.samples.normals[which])
     grid = fibonacci_directions(GRID)
     sees = np.array(list(visibility(subset, seen.surface, c + radius_m * grid)))
     return UnseenSight(grid, sees, len(seen.seen), subset.points)
