@@ -264,6 +264,7 @@ def test_the_request_to_lay_it_says_which_side_faces_the_robot(tmp_path):
     choice = next_best_face(seen, centre, 0.5, _around(math.radians(50)))
     request = face_request(seen, choice, centre, 1, tmp_path)
     np.testing.assert_allclose(request["toward_W"], choice.toward_W)
+    assert request["expected_overlap"] == choice.overlap
     assert "faces the robot" in request["words"]
     assert (tmp_path / request["picture"]).stat().st_size > 10_000
 

@@ -77,6 +77,7 @@ def face_request(
         "face": face_words(choice.down_W),
         "face_probability": choice.probability,
         "expected_gain": choice.gain,
+        "expected_overlap": choice.overlap,
         "words": lay_instruction(choice, index, str(scan_root / name), support),
         "picture": name,
     }
