@@ -29,7 +29,7 @@ from reconstruction.evaluation.metrics import (
     sample_surface,
     visible_mask,
 )
-from reconstruction.evaluation.support import SupportPlane
+from reconstruction.evaluation.support import CONTACT_M, SupportPlane
 from reconstruction.surfaces.fused import FusedCloud
 from reconstruction.surfaces.poisson_solver import solve_poisson_apart
 from reconstruction.surfaces.topology import kept_triangles, triangle_components
@@ -94,10 +94,34 @@ def seen_surface(
     unoccluded, not on or below the top of what held the object in its pass: `supports`, per
     view) that lie within `support_m` of a fused point."""
     surface = closed_surface(fused)
+    if supports is not None:
+        surface = above_supports(surface, supports)
     points = sample_surface(surface, samples)
     held = distances_to_points(points.points, fused.points_W) <= support_m
     seen = visible_mask(points, surface, camera_centres_W, supports=supports)
     return SeenSurface(surface, points, held & seen)
+
+
+def above_supports(
+    surface: TriangleSurface, supports: Sequence[SupportPlane | None]
+) -> TriangleSurface:
+    """The closed surface without what lies below the top of any pass's support (more than
+    `CONTACT_M`): the object lay on each of them, so nothing of it was there. Poisson bridges an
+    unseen side with a smooth balloon, and on a support most of it hangs below the top: the
+    spot on the table after two passes, 72 % of the closed surface below the second pass's table
+    top, gave a coverage of 0.147 where 0.67 of the object had been seen (and the scan stopped,
+    the estimate's gain below the minimum)."""
+    planes = {id(p): p for p in supports if p is not None}.values()
+    if not planes:
+        return surface
+    v, t = np.asarray(surface.vertices, float), np.asarray(surface.triangles)
+    centroids = v[t].mean(axis=1)
+    keep = np.ones(len(t), bool)
+    for plane in planes:
+        keep &= (centroids - plane.p_W) @ plane.n_W >= -CONTACT_M
+    if keep.all():
+        return surface
+    return TriangleSurface(*kept_triangles(v, t, keep))
 
 
 def coverage_estimate(
