@@ -44,7 +44,7 @@ TOWARD_ROBOT = np.array([-1.0, 0.0, 0.0])  # the robot stands at the origin, the
 # little (the fandisk laid to show all it had not: 30 % of its points on the first pass's, and
 # aligned 1.1 mm / 0.34 deg off). Below this share of the pass's surface seen before, a
 # candidate's gain counts in proportion.
-MIN_PASS_OVERLAP = 0.35
+MIN_PASS_OVERLAP = 0.5
 
 
 @dataclass(frozen=True, eq=False)
