@@ -8,7 +8,9 @@ turning them by R^T about the centre, and a candidate's gain is the share of the
 unseen samples the pass's cameras would see after it. The person is told which side to turn
 towards the robot (the best yaw for the face), and turns it so by eye: the gain is averaged over
 yaws within that error. The arm sees a lying object from above and from its own side, so the
-yaw decides whether an unseen side faces the cameras or away. Unlike a hanging, only the
+yaw decides whether an unseen side faces the cameras or away. The pass is then aligned on what
+it sees again: a candidate whose pass would see less than `MIN_PASS_OVERLAP` of surface seen
+before counts its gain in proportion. Unlike a hanging, only the
 faces the model can rest on are candidates: its hull's faces that hold its centre of mass
 (reconstruction/hangings/resting_poses.py), computed on the closed model so far; and the face
 laid down is hidden from that pass by the support it lies on, whatever the views.
