@@ -35,7 +35,7 @@ from reconstruction.common.kdtree import query_workers
 # Neighbours of the other half that fit its local plane: enough to average its noise, few
 # enough to stay on one side of an edge at the halves' spacing.
 NORMAL_NEIGHBOURS = 12
-# Points whose normal distance is computed at a time (their neighbours: 12 x 3 doubles each).
+# Points queried at a time (their neighbours: 12 x 3 doubles each).
 CHUNK = 200_000
 
 
@@ -60,13 +60,28 @@ def _distances_m(
     in the common part) and to the plane of its nearest neighbours there (nan beyond)."""
     tree = cKDTree(other_W)
     workers = query_workers(len(points_W))
-    # Beyond the radius the distance is not needed: the point is outside the common part.
-    d, _ = tree.query(points_W, k=1, distance_upper_bound=radius_m, workers=workers)
-    along = np.full(len(points_W), np.nan)
-    common = np.flatnonzero(d <= radius_m)
     k = min(NORMAL_NEIGHBOURS, len(other_W))
-    if k < 3:
-        return d, along
+    d = np.empty(len(points_W))
+    along = np.full(len(points_W), np.nan)
+    # One query a chunk: the nearest of the neighbours is the nearest point.
+    for start in range(0, len(points_W), CHUNK):
+        rows = slice(start, start + CHUNK)
+        near, idx = tree.query(points_W[rows], k=k, workers=workers)
+        near, idx = near.reshape(len(near), -1), idx.reshape(len(idx), -1)
+        d[rows] = near[:, 0]
+        common = near[:, 0] <= radius_m
+        if k < 3 or not common.any():
+            continue
+        nb = other_W[idx[common]]
+        centre = nb.mean(axis=1)
+        spread = nb - centre[:, None, :]
+        # The plane's normal: the least-spread direction of the neighbours.
+        normal = np.linalg.eigh(np.einsum("nki,nkj->nij", spread, spread))[1][:, :, 0]
+        p = points_W[rows][common]
+        along[start + np.flatnonzero(common)] = np.abs(np.einsum("ni,ni->n", p - centre, normal))
+    # Beyond the radius the point is outside the common part.
+    d[d > radius_m] = np.inf
+    return d, along
     for start in range(0, len(common), CHUNK):
         rows = common[start : start + CHUNK]
         _, idx = tree.query(points_W[rows], k=k, workers=workers)

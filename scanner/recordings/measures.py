@@ -94,8 +94,8 @@ def _split_half(paired: PairedClouds, result, settings: RecordingProcessing, foo
     odd = fuse_clouds(*halves[1], voxel_m)
     s: SplitHalf = split_half_agreement(even.points_W, odd.points_W, common_m)
     return {
-        "median_mm": round(1e3 * s.median_m, 4) if math.isfinite(s.median_m) else None,
-        "p90_mm": round(1e3 * s.p90_m, 4) if math.isfinite(s.p90_m) else None,
+        "median_mm": _mm(s.median_m),
+        "p90_mm": _mm(s.p90_m),
         "normal_median_mm": _mm(s.normal_median_m),
         "normal_p90_mm": _mm(s.normal_p90_m),
         "common_share": round(s.common_share, 4),

@@ -55,10 +55,9 @@ def write_rehang_picture(
                 xytext=(c[i], c[j]),
                 arrowprops=dict(arrowstyle="-|>", color=color, lw=2),
             )
-            ax.update_datalim([(end[i], end[j])])
+            # The arrows lie partly outside the model: let the axes take them in.
+            ax.update_datalim([(end[i], end[j]), (c[i], c[j])])
         ax.plot(clamp_W[i], clamp_W[j], marker="*", markersize=16, color="tab:green")
-        # The arrow lies partly outside the model: let the axes take it in.
-        ax.update_datalim([(tip[i], tip[j]), (c[i], c[j])])
         ax.autoscale_view()
         ax.set_aspect("equal")
         ax.set_title(title)

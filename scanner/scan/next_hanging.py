@@ -44,15 +44,16 @@ class HangingChoice:
 
 
 @dataclass(frozen=True, eq=False)
-class UnseenSight:
-    """Which of the closed model's unseen samples a camera would see from each of a fine grid
-    of directions about the centre (`sees`: grid x unseen samples), cast once; `total`: every
-    sample's count (the gains are shares of the whole model)."""
+class Sight:
+    """Which of a set of the closed model's samples (its unseen ones, `unseen_sight`; some of
+    its seen ones, `seen_sight`) a camera would see from each of a fine grid of directions
+    about the centre (`sees`: grid x those samples), cast once; `total`: the count the gains
+    are shares of (every sample for the unseen, the subset for the seen)."""
 
     grid: np.ndarray
     sees: np.ndarray
     total: int
-    points: np.ndarray | None = None  # (unseen, 3): the unseen samples, where they are now
+    points: np.ndarray | None = None  # (samples, 3): those samples, where they are now
 
     def gain(
         self, view_directions: np.ndarray, R: np.ndarray, support: SupportPlane | None = None
@@ -75,9 +76,7 @@ class UnseenSight:
         return seen
 
 
-def unseen_sight(
-    seen: SeenSurface, centre_W: Sequence[float], radius_m: float
-) -> UnseenSight | None:
+def unseen_sight(seen: SeenSurface, centre_W: Sequence[float], radius_m: float) -> Sight | None:
     """What the grid's cameras at `radius_m` from the centre would see of what is unseen; None
     when nothing is unseen."""
     return _sight(seen, ~seen.seen, centre_W, radius_m)
@@ -85,7 +84,7 @@ def unseen_sight(
 
 def seen_sight(
     seen: SeenSurface, centre_W: Sequence[float], radius_m: float, samples: int = 4000
-) -> UnseenSight | None:
+) -> Sight | None:
     """The same of what was seen, on at most `samples` of those samples (`total`: their
     count, so that a share of it scales to all seen samples); None when nothing was seen."""
     index = np.flatnonzero(seen.seen)
@@ -99,14 +98,14 @@ def seen_sight(
 
 def _sight(
     seen: SeenSurface, which: np.ndarray, centre_W: Sequence[float], radius_m: float
-) -> UnseenSight | None:
+) -> Sight | None:
     if not which.any():
         return None
     c = np.asarray(centre_W, float)
     subset = SurfaceSamples(seen.samples.points[which], seen.samples.normals[which])
     grid = fibonacci_directions(GRID)
     sees = np.array(list(visibility(subset, seen.surface, c + radius_m * grid)))
-    return UnseenSight(grid, sees, len(seen.seen), subset.points)
+    return Sight(grid, sees, len(seen.seen), subset.points)
 
 
 def next_best_hanging(
